@@ -1,0 +1,1 @@
+"""SCPI: the codec (pure functions between commands and text), dialects (data), the cycler driver."""

@@ -1,0 +1,247 @@
+"""The virtual lab: one virtual clock, a simulated cycler on a cell, a simulated chamber, their servers.
+
+Concurrency model: threads and blocking sockets. One ``threading.RLock`` (``lab.lock``) guards all simulated
+state; a ticker thread advances the instruments along the clock every ``tick_real_s`` real seconds, so time,
+the cell, the chamber air and the instrument watchdog move on while the host is silent or dead. Each server
+handler takes the lock and advances to "now" before it answers, so a current set at virtual time t flows from
+exactly t (zero-order hold). pymodbus's asyncio server runs in its own thread with its own loop.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivers.scpi.dialects import BATTLAB_VIRTUAL, ScpiDialect
+from drivers.virtual.clock import VirtualClock
+from drivers.virtual.cycler_server import ScpiCyclerServer
+from drivers.virtual.espec_server import EspecServer
+from drivers.virtual.faults import DeviceFaultPlan, FaultConfig, FaultInjector
+from drivers.virtual.instruments import ChamberConfig, SimulatedChamber, SimulatedCycler
+from drivers.virtual.modbus_server import F4TModbusServer
+from drivers.virtual.noise import NoiseModel
+from drivers.virtual.physics import CellPhysics, Effect, EquivalentCircuitCell, apply_effects
+
+log = logging.getLogger("drivers.virtual")
+
+LOOPBACK = "127.0.0.1"
+
+
+@dataclass
+class VirtualLabConfig:
+    """Everything about a virtual lab except its physics. Ports: 0 = any free port, None = no server."""
+
+    speed: float = 1000.0
+    host: str = LOOPBACK
+    cycler_port: int | None = 0
+    modbus_port: int | None = 0
+    modbus_rtu_port: int | None = 0
+    espec_port: int | None = 0
+    dialect: ScpiDialect = BATTLAB_VIRTUAL
+    soc0: float = 0.5
+    chamber: ChamberConfig = field(default_factory=ChamberConfig)
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    seed: int = 0
+    max_step_s: float = 1.0
+    tick_real_s: float = 0.001
+    #: a chamber alarm turns the cycler output off (status bit INH), as a hard-wired interlock would
+    interlock: bool = True
+    scpi_faults: FaultConfig = field(default_factory=FaultConfig)
+    modbus_faults: FaultConfig = field(default_factory=FaultConfig)
+    espec_faults: FaultConfig = field(default_factory=FaultConfig)
+    device_faults: DeviceFaultPlan = field(default_factory=DeviceFaultPlan)
+
+
+class VirtualLab:
+    """A running virtual tester. Use as a context manager, or call :meth:`start` and :meth:`stop`.
+
+    ``physics`` defaults to the stand-in :class:`EquivalentCircuitCell`; ``effects`` wrap it (hidden effects).
+    """
+
+    def __init__(
+        self,
+        physics: CellPhysics | None = None,
+        config: VirtualLabConfig | None = None,
+        effects: Sequence[Effect] = (),
+    ) -> None:
+        self.config = cfg = config or VirtualLabConfig()
+        if cfg.host != LOOPBACK:
+            log.warning("virtual lab serving on %s, not loopback", cfg.host)
+        self.lock = threading.RLock()
+        self.clock = VirtualClock(cfg.speed)
+        rng = np.random.default_rng(cfg.seed)
+        self.physics = apply_effects(physics if physics is not None else EquivalentCircuitCell(), effects)
+        self.chamber = SimulatedChamber(cfg.chamber, rng=np.random.default_rng(rng.integers(2**63)))
+        self.cycler = SimulatedCycler(
+            self.physics,
+            noise=cfg.noise,
+            rng=np.random.default_rng(rng.integers(2**63)),
+            max_step_s=cfg.max_step_s,
+            speed=cfg.speed,
+        )
+        self.cycler.reset_cell(cfg.soc0, self.chamber.T_air_K)
+        self.scpi_faults = FaultInjector(cfg.scpi_faults)
+        self.modbus_faults = FaultInjector(cfg.modbus_faults)
+        self.espec_faults = FaultInjector(cfg.espec_faults)
+        self.cycler_server = (
+            ScpiCyclerServer(self, cfg.dialect, host=cfg.host, port=cfg.cycler_port, faults=self.scpi_faults)
+            if cfg.cycler_port is not None
+            else None
+        )
+        self.modbus_server = (
+            F4TModbusServer(
+                self,
+                host=cfg.host,
+                tcp_port=cfg.modbus_port,
+                rtu_port=cfg.modbus_rtu_port,
+                faults=self.modbus_faults,
+            )
+            if cfg.modbus_port is not None or cfg.modbus_rtu_port is not None
+            else None
+        )
+        self.espec_server = (
+            EspecServer(self, host=cfg.host, port=cfg.espec_port, faults=self.espec_faults)
+            if cfg.espec_port is not None
+            else None
+        )
+        self._t = 0.0
+        self._events = self._device_events(cfg.device_faults)
+        self._stop = threading.Event()
+        self._ticker: threading.Thread | None = None
+        self.started = False
+
+    # -- life cycle ---------------------------------------------------------------------------------------
+    def start(self) -> VirtualLab:
+        try:
+            for server in (self.cycler_server, self.modbus_server, self.espec_server):
+                if server is not None:
+                    server.start()
+        except BaseException:
+            self.stop()
+            raise
+        self._ticker = threading.Thread(target=self._tick_loop, name="virtual-lab-ticker", daemon=True)
+        self._ticker.start()
+        self.started = True
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        for server in (self.cycler_server, self.modbus_server, self.espec_server):
+            if server is not None:
+                server.stop()
+        if self._ticker is not None:
+            self._ticker.join(2.0)
+        self.started = False
+
+    def __enter__(self) -> VirtualLab:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # -- URLs ---------------------------------------------------------------------------------------------
+    @property
+    def cycler_url(self) -> str:
+        assert self.cycler_server is not None, "no cycler server"
+        return self.cycler_server.url
+
+    @property
+    def chamber_url(self) -> str:
+        """The Watlow F4T over Modbus TCP."""
+        assert self.modbus_server is not None, "no Modbus server"
+        return self.modbus_server.tcp_url
+
+    @property
+    def rtu_url(self) -> str:
+        """The Watlow F4T with RTU framing over TCP."""
+        assert self.modbus_server is not None, "no Modbus server"
+        return self.modbus_server.rtu_url
+
+    @property
+    def espec_url(self) -> str:
+        assert self.espec_server is not None, "no Espec server"
+        return self.espec_server.url
+
+    # -- time ---------------------------------------------------------------------------------------------
+    def _tick_loop(self) -> None:
+        while not self._stop.wait(self.config.tick_real_s):
+            try:
+                with self.lock:
+                    self.advance()
+            except Exception:
+                log.exception("virtual lab: advance failed")
+
+    def advance(self) -> float:
+        """Advance every simulated instrument to the clock's now (call with ``lock`` held); returns now."""
+        with self.lock:
+            t = self.clock.now()
+            while self._events and self._events[0][0] <= t:
+                t_event, action = self._events.pop(0)
+                self._advance_to(max(t_event, self._t))
+                action()
+            self._advance_to(t)
+            return self._t
+
+    def _advance_to(self, t: float) -> None:
+        if t <= self._t:
+            return
+        T_start = self.chamber.T_air_K
+        self.chamber.advance(t)
+        self.cycler.advance(t, 0.5 * (T_start + self.chamber.T_air_K))
+        if self.config.interlock and self.chamber.alarm_codes:
+            self.cycler.inhibit(f"chamber alarm {self.chamber.alarm_codes}")
+        self._t = t
+
+    def _device_events(self, plan: DeviceFaultPlan) -> list[tuple[float, object]]:
+        events: list[tuple[float, object]] = []
+        if plan.chamber_alarm_at_s is not None:
+            events.append((plan.chamber_alarm_at_s, lambda: self._alarm(plan.chamber_alarm_code)))
+        if plan.cell_over_temperature_at_s is not None:
+            events.append(
+                (
+                    plan.cell_over_temperature_at_s,
+                    lambda: self.force_cell_temperature(plan.over_temperature_K),
+                )
+            )
+        return sorted(events, key=lambda e: e[0])
+
+    # -- device faults ------------------------------------------------------------------------------------
+    def _alarm(self, code: int) -> None:
+        self.chamber.trigger_alarm(code)
+        if self.config.interlock:
+            self.cycler.inhibit(f"chamber alarm {code}")
+
+    def trigger_chamber_alarm(self, code: int = 1) -> None:
+        with self.lock:
+            self.advance()
+            self._alarm(code)
+
+    def clear_chamber_alarm(self) -> None:
+        with self.lock:
+            self.chamber.clear_alarm()
+
+    def force_cell_temperature(self, T_K: float | None) -> None:
+        """Cell over-temperature fault: the surface probe reads at least ``T_K`` from now (None: clear)."""
+        with self.lock:
+            self.cycler.forced_T_K = T_K
+            if T_K is not None:
+                self.cycler._check_limits()
+
+    def snapshot(self) -> dict[str, float | bool]:
+        """The true state (for tests and reports): virtual time, voltage, current, temperatures, output."""
+        with self.lock:
+            self.advance()
+            c = self.cycler
+            return {
+                "t_s": self._t,
+                "voltage_V": c.v_true,
+                "current_A": c.i_true,
+                "T_cell_K": c.T_cell_K,
+                "T_air_K": self.chamber.T_air_K,
+                "output_on": c.output_on,
+                "status": c.status,
+            }
