@@ -1,0 +1,69 @@
+"""``battlab export``: write a profile or a protocol (plan) as a tester schedule, a PyBaMM module or a CSV."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from protocols import InputError, Library, Profile, Protocol
+from protocols.export import Format
+from protocols.export import export as export_to
+
+FORMATS = ", ".join(f.value for f in Format)
+
+
+def load_source(source: str, library_path: str | None) -> Profile | Protocol:
+    """A profile CSV, a protocol TOML/JSON, or a library profile id."""
+    path = Path(source)
+    if path.is_file():
+        suffix = path.suffix.lower()
+        if suffix == ".csv":
+            return Profile.from_csv(path, id=path.stem)
+        if suffix in (".toml", ".json"):
+            return Protocol.load(path, library=library_path)
+        raise InputError(f"{path}: expected a profile .csv or a protocol/plan .toml or .json")
+    if source.isdigit():
+        lib = Library.load(library_path) if library_path else Library.build()
+        return lib[int(source)]
+    raise InputError(f"{source}: no such file, and not a library profile id")
+
+
+@click.command("export")
+@click.argument("source", metavar="PROFILE_OR_PLAN")
+@click.option("-f", "--format", "fmt", required=True, help=f"Output format: {FORMATS}.")
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Directory.")
+@click.option(
+    "-l",
+    "--library",
+    "library_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Library HDF5 for library ids (default: the built library).",
+)
+@click.option("--name", default=None, help="Base name of the written files (default: the protocol's name).")
+@click.option(
+    "--max-steps",
+    type=int,
+    default=None,
+    help="Override the format's step/segment limit (if your tester takes more).",
+)
+def export(
+    source: str, fmt: str, out_dir: str, library_path: str | None, name: str | None, max_steps: int | None
+) -> None:
+    """Export PROFILE_OR_PLAN (a profile .csv, a protocol/plan .toml/.json, or a library id).
+
+    Formats: maccor (.000 procedure + .MWF FastWave waveform), arbin (.sdu), biologic (Modulo Bat .mps),
+    neware (BTS .xml), pybamm (module with experiment()), csv (Test Time / s, Current / A). A file the format
+    cannot represent exactly is refused with what to change.
+    """
+    f = Format.parse(fmt)
+    obj = load_source(source, library_path)
+    result = export_to(obj, f, out_dir, name=name, max_steps=max_steps)
+    for path in result.files:
+        click.echo(f"wrote {path}")
+    for note in result.notes:
+        click.echo(f"note: {note}")
+
+
+__all__ = ["export"]
