@@ -108,7 +108,7 @@ class ReplayAdapter(_Replay):
 
 
 class ReplayRegisters(_Replay):
-    """A :class:`drivers.chambers.modbus.RegisterAdapter` replaying ``R``/``W`` pairs (numbers in any base)."""
+    """A :class:`drivers.chambers.modbus.RegisterAdapter` replaying ``R``/``W`` pairs (any number base)."""
 
     def __init__(self, pairs: Iterable[Pair], name: str = "replay") -> None:
         def normal(command: str) -> str:

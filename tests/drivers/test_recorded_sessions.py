@@ -119,14 +119,14 @@ def test_recorded_session(filename: str) -> None:
 
 
 def test_replay_fails_on_unused_pairs() -> None:
-    replay = ReplayAdapter(parse_recording("> *IDN?\n< a,b,c,d\n> OUTP 0;:SYST:ERR?\n< +0,\"No error\"\n"))
+    replay = ReplayAdapter(parse_recording('> *IDN?\n< a,b,c,d\n> OUTP 0;:SYST:ERR?\n< +0,"No error"\n'))
     ScpiCycler(replay, KEYSIGHT_N7900).identify()
     with pytest.raises(AssertionError, match="1 recorded pair"):
         replay.assert_all_used()
 
 
 def test_replay_fails_on_unexpected_command() -> None:
-    replay = ReplayAdapter(parse_recording("> OUTP 1;:SYST:ERR?\n< +0,\"No error\"\n"))
+    replay = ReplayAdapter(parse_recording('> OUTP 1;:SYST:ERR?\n< +0,"No error"\n'))
     with pytest.raises(AssertionError, match="recording expects 'OUTP 1;:SYST:ERR\\?'"):
         ScpiCycler(replay, KEYSIGHT_N7900).output(False)
 

@@ -1,0 +1,36 @@
+"""Fixtures for the drivers tests: virtual labs started in-process on free loopback ports."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import pytest
+
+from drivers.virtual.lab import VirtualLab, VirtualLabConfig
+
+
+@pytest.fixture
+def make_lab() -> Iterator[Callable[..., VirtualLab]]:
+    """``make_lab(physics=None, effects=(), **config)`` → a started lab; all are stopped at teardown."""
+    labs: list[VirtualLab] = []
+
+    def factory(physics: Any = None, effects: tuple[Any, ...] = (), **config: Any) -> VirtualLab:
+        lab = VirtualLab(physics, VirtualLabConfig(**config), effects=effects).start()
+        labs.append(lab)
+        return lab
+
+    yield factory
+    for lab in labs:
+        lab.stop()
+
+
+def wait_until(predicate: Callable[[], bool], timeout_s: float, poll_s: float = 0.005) -> bool:
+    """Poll ``predicate`` for at most ``timeout_s`` real seconds (every test loop is bounded)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(poll_s)
+    return predicate()
