@@ -20,6 +20,7 @@ reported as a bound (``cv_time_budget_s``), and the CC parts are estimated from 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum
@@ -161,7 +162,7 @@ def concatenate(
             v_target = ocv_at(target, ocv_table)
             if abs(target - soc) > 1e-9:
                 current = i_adj if target > soc else -i_adj
-                budget = after(abs(target - soc) * 3600.0 / adjust_c_rate + cv_max_s)
+                budget = after(math.ceil(abs(target - soc) * 3600.0 / adjust_c_rate + cv_max_s))
                 steps.append(CCCV(current, v_target, (current_below(cutoff), budget), label))
                 adjust_s += abs(target - soc) * capacity_ah * 3600.0 / i_adj
                 cv_s += cv_max_s

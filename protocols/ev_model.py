@@ -59,7 +59,7 @@ class EVModel:
             if not 0 < getattr(self, name) <= 1:
                 raise InputError(f"EV model: {name} must be in (0, 1], got {getattr(self, name)}")
         if self.cells_in_series < 1 or self.cells_in_parallel < 1:
-            raise InputError("EV model: the pack needs at least one cell in series and in parallel")
+            raise InputError("EV model: cells_in_series and cells_in_parallel must be at least 1")
 
     @property
     def n_cells(self) -> int:

@@ -113,7 +113,9 @@ class EndCondition:
             )
 
     def __str__(self) -> str:
-        return f"{self.quantity.value} {self.op.value} {self.value:.12g}"
+        v = self.value
+        text = str(int(v)) if v.is_integer() and abs(v) < 1e15 else repr(v)
+        return f"{self.quantity.value} {self.op.value} {text}"
 
     @classmethod
     def parse(cls, text: str) -> EndCondition:

@@ -128,7 +128,7 @@ def check_times(protocol: Protocol, rules: FormatRules) -> None:
 
 def profile_plan(protocol: Protocol, k: int, step: ProfileStep, rules: FormatRules) -> tuple[Item, ...]:
     """Holds/repeats of a profile step, refusing durations the format cannot time."""
-    items = profile_items(step.profile, loops=rules.loops)
+    items = profile_items(step.profile, loops=rules.loops, current_quantum=rules.current_resolution_a)
     t = step.profile.t[0]
     quantum = max(rules.time_resolution_s, rules.min_duration_s)
     for h in expand(items):

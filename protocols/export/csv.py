@@ -2,9 +2,9 @@
 
 Conventions: columns ``Test Time / s`` and ``Current / A``; current positive = charge (BDF); one row per
 sample, zero-order hold (the current of a row flows until the next row's time); values written with 10
-significant digits. Only timed currents can be written: a rest or CC step that ends on time alone becomes
-samples, any other step (voltage, current or capacity ends, CV, CCCV) is refused. Consecutive steps are
-joined on one time axis starting at 0. No segment limit.
+significant digits (1 us up to an hour, 10 nA below 100 A). Only timed currents can be written: a rest or
+CC step that ends on time alone becomes samples, any other step (voltage, current or capacity ends, CV,
+CCCV) is refused. Consecutive steps are joined on one time axis starting at 0. No segment limit.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ RULES = FormatRules(
     label="CSV",
     time_resolution_s=1e-6,
     min_duration_s=1e-6,
-    current_resolution_a=1e-9,
+    current_resolution_a=1e-8,
     max_steps=None,
     loops=False,
 )

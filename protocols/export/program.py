@@ -108,9 +108,25 @@ def compress(
     return tuple(items)
 
 
-def profile_items(profile: Profile, *, loops: bool = True, max_period: int | None = None) -> tuple[Item, ...]:
-    """A profile as holds (and repeats, with ``loops``)."""
+def profile_items(
+    profile: Profile,
+    *,
+    loops: bool = True,
+    max_period: int | None = None,
+    current_quantum: float | None = None,
+) -> tuple[Item, ...]:
+    """A profile as holds (and repeats, with ``loops``).
+
+    With ``current_quantum`` [A] currents are first rounded to that resolution (as the file will hold
+    them; a current that rounds to zero becomes a rest) and neighbours made equal by the rounding merged.
+    """
     d, c = profile.segments()
+    if current_quantum:
+        c = np.round(c / current_quantum) * current_quantum + 0.0
+        keep = np.concatenate([[True], np.diff(c) != 0])
+        idx = np.cumsum(keep) - 1
+        d = np.bincount(idx, weights=d)
+        c = c[keep]
     if not loops:
         return tuple(Hold(float(x), float(y)) for x, y in zip(d, c, strict=True))
     return compress(d, c, max_period=max_period)
@@ -182,6 +198,19 @@ def holds_profile(items: Sequence[Canonical], **meta: object) -> Profile:
     return Profile.from_segments([h.duration for h in holds], [h.current for h in holds], **meta)  # type: ignore[arg-type]
 
 
+def _merge_close(seq: Sequence[Canonical], current_tol: float) -> list[Canonical]:
+    """Merge neighbouring holds whose currents agree within ``current_tol`` (rounding in a file can make
+    two distinct neighbouring samples equal, and the re-import then merges them)."""
+    out: list[Canonical] = []
+    for x in seq:
+        last = out[-1] if out else None
+        if isinstance(x, Hold) and isinstance(last, Hold) and abs(last.current - x.current) <= current_tol:
+            out[-1] = Hold(last.duration + x.duration, last.current)
+        else:
+            out.append(x)
+    return out
+
+
 def _close(a: float, b: float, tol: float) -> bool:
     return abs(a - b) <= tol + 1e-12 * max(abs(a), abs(b))
 
@@ -200,9 +229,11 @@ def difference(
 ) -> str | None:
     """First difference between two canonical lists beyond the tolerances, or None if equivalent.
 
-    ``time_tol`` [s] and ``current_tol`` [A] bound holds; ``value_tol`` bounds voltages, currents and end
-    values of other steps (relative to their magnitude for end values).
+    ``time_tol`` [s] and ``current_tol`` [A] bound holds (neighbouring holds within ``current_tol`` of each
+    other are merged first); ``value_tol`` bounds voltages, currents and end values of other steps (relative
+    to their magnitude for end values).
     """
+    a, b = _merge_close(a, current_tol), _merge_close(b, current_tol)
     if len(a) != len(b):
         return f"{len(a)} items vs {len(b)} items"
     for k, (x, y) in enumerate(zip(a, b, strict=True), start=1):

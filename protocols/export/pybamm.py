@@ -99,15 +99,14 @@ def write(
     mod = module_name(name or protocol.name)
     out_dir = Path(out_dir)
     files: list[Path] = []
+    tables: list[tuple[Path, np.ndarray]] = []
     calls: list[str] = []
     for k, s in enumerate(proto.steps, start=1):
         w = where(proto, k, s)
         if isinstance(s, ProfileStep):
             holds = expand(profile_plan(proto, k, s, rules))
             csv = out_dir / f"{mod}_step{k}.csv"
-            np.savetxt(
-                csv, drive_cycle_array(holds), delimiter=",", fmt="%.17g", header="t_s,current_A", comments=""
-            )
+            tables.append((csv, drive_cycle_array(holds)))
             files.append(csv)
             desc = f"profile {s.profile.id}" if s.profile.id is not None else "profile"
             calls.append(f'pybamm.step.current(_drive_cycle("{csv.name}"), description={desc!r})')
@@ -186,6 +185,8 @@ def experiment() -> pybamm.Experiment:
     )
 '''
     path = out_dir / f"{mod}.py"
+    for csv, table in tables:  # written only once every step has been accepted
+        np.savetxt(csv, table, delimiter=",", fmt="%.17g", header="t_s,current_A", comments="")
     path.write_text(text, encoding="utf-8")
     return ExportResult((path, *files))
 
