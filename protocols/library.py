@@ -280,14 +280,20 @@ class Library:
         """All profile ids in order."""
         return [int(p.id) for p in self._profiles]  # type: ignore[arg-type]
 
-    def select(self, *, kind: str | None = None, soc0: float | None = None) -> list[Profile]:
-        """Profiles of one kind and/or start SOC."""
+    def select(self, *, kind: str | None = None, soc0: float | None = None, **params: Any) -> list[Profile]:
+        """Profiles of one kind and/or start SOC whose generating parameters equal ``params``.
+
+        E.g. ``lib.select(kind="pulse", width_s=10.0, direction="charge")`` - the way to compare selections
+        with the paper's Table 10 (by parameters, not ids).
+        """
         if kind is not None and kind not in KINDS:
             raise InputError(f"library: unknown kind {kind!r}; expected one of {KINDS}")
         return [
             p
             for p in self._profiles
-            if (kind is None or p.kind == kind) and (soc0 is None or abs(float(p.soc0) - soc0) < 1e-9)
+            if (kind is None or p.kind == kind)
+            and (soc0 is None or abs(float(p.soc0) - soc0) < 1e-9)
+            and all(key in p.params and p.params[key] == value for key, value in params.items())
         ]
 
     @property

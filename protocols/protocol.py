@@ -394,7 +394,8 @@ class Protocol:
                 )
             if isinstance(s, ProfileStep) and s.profile.max_abs_current > lim.current_max * (1 + 1e-12):
                 raise InputError(
-                    f"{where}: profile {s.profile.id} reaches {s.profile.max_abs_current:.4g} A, beyond the "
+                    f"{where}: profile {s.profile.id if s.profile.id is not None else '(unnamed)'} reaches "
+                    f"{s.profile.max_abs_current:.4g} A, beyond the "
                     f"limit {lim.current_max:g} A (limits.current_max); scale the profile down"
                 )
             if isinstance(s, ConstantVoltage | CCCV) and not lim.voltage_min <= s.voltage <= lim.voltage_max:

@@ -48,8 +48,15 @@ def load_source(source: str, library_path: str | None) -> Profile | Protocol:
     default=None,
     help="Override the format's step/segment limit (if your tester takes more).",
 )
+@click.option("--max-current", type=float, default=None, help="The cycler channel's current range [A].")
 def export(
-    source: str, fmt: str, out_dir: str, library_path: str | None, name: str | None, max_steps: int | None
+    source: str,
+    fmt: str,
+    out_dir: str,
+    library_path: str | None,
+    name: str | None,
+    max_steps: int | None,
+    max_current: float | None,
 ) -> None:
     """Export PROFILE_OR_PLAN (a profile .csv, a protocol/plan .toml/.json, or a library id).
 
@@ -59,7 +66,7 @@ def export(
     """
     f = Format.parse(fmt)
     obj = load_source(source, library_path)
-    result = export_to(obj, f, out_dir, name=name, max_steps=max_steps)
+    result = export_to(obj, f, out_dir, name=name, max_steps=max_steps, max_current_a=max_current)
     for path in result.files:
         click.echo(f"wrote {path}")
     for note in result.notes:

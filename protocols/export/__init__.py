@@ -17,7 +17,14 @@ from types import ModuleType
 from protocols.export import arbin, biologic, maccor, neware
 from protocols.export import csv as csv_format
 from protocols.export import pybamm as pybamm_format
-from protocols.export.base import ExportResult, Format, FormatRules, ReadBack, as_protocol
+from protocols.export.base import (
+    ExportResult,
+    Format,
+    FormatRules,
+    ReadBack,
+    as_protocol,
+    check_cycler_current,
+)
 from protocols.export.program import canonical, difference, split_cccv
 from protocols.profile import Profile
 from protocols.protocol import Protocol, SafetyLimits
@@ -46,14 +53,18 @@ def export(
     max_steps: int | None = None,
     limits: SafetyLimits | None = None,
     created: datetime | None = None,
+    max_current_a: float | None = None,
 ) -> ExportResult:
     """Write ``source`` in format ``fmt`` into ``out_dir`` (created if missing).
 
     ``max_steps`` overrides the format's step/segment limit; ``limits`` are the safety limits used when
-    ``source`` is a bare profile; ``created`` stamps formats that carry a date (Neware).
+    ``source`` is a bare profile; ``created`` stamps formats that carry a date (Neware); ``max_current_a``
+    is the cycler channel's current range [A] (steps beyond it are refused).
     """
     f = Format.parse(fmt)
-    protocol = as_protocol(source, limits)
+    protocol = as_protocol(source, limits).check()
+    if max_current_a is not None:
+        check_cycler_current(protocol, max_current_a)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     module = MODULES[f]

@@ -329,7 +329,12 @@ def _read_step(path: Path, s: dict[str, str], lims: list[dict[str, str]]) -> Can
     if ctrl in ("Current(A)", "CCCV"):
         charging = float(s["m_szCtrlValue"]) > 0
     elif ctrl == "Voltage(V)":
-        charging = "cv charge" in label
+        m = re.match(r"\d+-cv (charge|discharge)\b", label)
+        if m is None:
+            raise InputError(
+                f"{path}: CV step {label!r} does not name its direction ('<n>-cv charge|discharge')"
+            )
+        charging = m.group(1) == "charge"
     ends = []
     for li in lims:
         left, sign, right = (

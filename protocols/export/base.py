@@ -166,3 +166,14 @@ def fmt_num(x: float, decimals: int) -> str:
     """Fixed-point text with ``decimals`` decimals and no negative zero."""
     s = f"{x:.{decimals}f}"
     return "0." + "0" * decimals if float(s) == 0 and decimals else ("0" if float(s) == 0 else s)
+
+
+def check_cycler_current(protocol: Protocol, max_current_a: float) -> None:
+    """Refuse a step whose current exceeds the cycler's ``max_current_a`` [A]."""
+    for k, s in enumerate(protocol.steps, start=1):
+        peak = s.profile.max_abs_current if isinstance(s, ProfileStep) else abs(getattr(s, "current", 0.0))
+        if peak > max_current_a * (1 + 1e-12):
+            raise InputError(
+                f"{where(protocol, k, s)}: needs {peak:.4g} A, beyond the cycler's {max_current_a:g} A "
+                "(--max-current); scale the step down or use a channel with a larger current range"
+            )

@@ -18,7 +18,7 @@ Conventions (learned from aurora-unicycler's Modulo Bat writer and the templates
   temperature limit has no field here and is reported as a note.
 
 Resolution and limits (assumptions, not checked against BioLogic's documentation): times are written to 1 ms
-and a sequence lasts at least 1 ms, currents to 1 uA (mA with 3 decimals), voltages to 0.1 mV; a technique
+and a sequence lasts at least 1 ms, currents to 1 uA (mA with 3 decimals), voltages to 1 uV; a technique
 holds at most 1000 sequences. The I range is left on ``Auto``; set a fixed range in EC-Lab where your
 instrument needs one for CC sequences.
 """
@@ -182,7 +182,7 @@ def _limit(e: EndCondition) -> tuple[str, str, str, str]:
     if e.quantity is Quantity.TIME:
         return ("Time", ">", fmt_num(e.value, 3), "s")
     if e.quantity is Quantity.VOLTAGE:
-        return ("Ecell", comp, fmt_num(e.value, 4), "V")
+        return ("Ecell", comp, fmt_num(e.value, 6), "V")
     if e.quantity is Quantity.CURRENT:
         return ("|I|", comp, fmt_num(e.value * 1e3, 3), "mA")
     return ("|Q|", ">", fmt_num(e.value, 6), "A.h")
@@ -250,7 +250,7 @@ def write(
                 {
                     "ctrl_type": "CV",
                     "current/potential": "potential",
-                    "ctrl1_val": fmt_num(s.voltage, 4),
+                    "ctrl1_val": fmt_num(s.voltage, 6),
                     "ctrl1_val_unit": "V",
                     "ctrl1_val_vs": "Ref",
                     "charge/discharge": "Charge" if s.direction is Direction.CHARGE else "Discharge",
@@ -268,9 +268,9 @@ def write(
         "Device : BCS-815",
         "Ecell ctrl range : min = 0.00 V, max = 5.00 V",
         "Safety Limits :",
-        f"\tEcell min = {fmt_num(lim.voltage_min, 4)} V",
-        f"\tEcell max = {fmt_num(lim.voltage_max, 4)} V",
-        f"\t|I| max = {fmt_num(lim.current_max, 4)} A",
+        f"\tEcell min = {fmt_num(lim.voltage_min, 6)} V",
+        f"\tEcell max = {fmt_num(lim.voltage_max, 6)} V",
+        f"\t|I| max = {fmt_num(lim.current_max, 6)} A",
         "\tfor t > 100 ms",
         f"Comments : {protocol.name}",
         "Cycle Definition : Charge/Discharge alternance",

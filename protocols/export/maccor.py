@@ -178,11 +178,11 @@ def _mwf_rows(holds: list[Hold], protocol: Protocol) -> list[str]:
                     "I",
                     fmt_num(abs(h.current), 6),
                     "V",
-                    fmt_num(v_lim, 4),
+                    fmt_num(v_lim, 6),
                     f"{h.duration:.4f}",
                     "V",
                     oper,
-                    fmt_num(v_lim, 4),
+                    fmt_num(v_lim, 6),
                     "T",
                     "1.0000",
                     "A",
@@ -205,10 +205,10 @@ def write(
     lim = protocol.limits
     safety = [
         _end_entry(
-            _END_TYPES[Quantity.VOLTAGE], _OPERS[Comparison.GE], end_no, fmt_num(lim.voltage_max, 4), True
+            _END_TYPES[Quantity.VOLTAGE], _OPERS[Comparison.GE], end_no, fmt_num(lim.voltage_max, 6), True
         ),
         _end_entry(
-            _END_TYPES[Quantity.VOLTAGE], _OPERS[Comparison.LE], end_no, fmt_num(lim.voltage_min, 4), True
+            _END_TYPES[Quantity.VOLTAGE], _OPERS[Comparison.LE], end_no, fmt_num(lim.voltage_min, 6), True
         ),
     ]
     lines: list[str] = []
@@ -220,7 +220,7 @@ def write(
             lines += _test_step(_TYPES["rest"], _MODES[""], "", ends=ends, note=s.label)
         elif isinstance(s, ConstantCurrent | CCCV):
             typ = _TYPES["charge" if s.current > 0 else "discharge"]
-            clamp = [f"        <Voltage>{fmt_num(s.voltage, 4)}</Voltage>"] if isinstance(s, CCCV) else None
+            clamp = [f"        <Voltage>{fmt_num(s.voltage, 6)}</Voltage>"] if isinstance(s, CCCV) else None
             lines += _test_step(
                 typ, _MODES["current"], fmt_num(abs(s.current), 6), limits=clamp, ends=ends, note=s.label
             )
@@ -228,7 +228,7 @@ def write(
             typ = _TYPES["charge" if s.direction is Direction.CHARGE else "discharge"]
             clamp = [f"        <Current>{fmt_num(lim.current_max, 6)}</Current>"]
             lines += _test_step(
-                typ, _MODES["voltage"], fmt_num(s.voltage, 4), limits=clamp, ends=ends, note=s.label
+                typ, _MODES["voltage"], fmt_num(s.voltage, 6), limits=clamp, ends=ends, note=s.label
             )
         elif isinstance(s, ProfileStep):
             holds = expand(profile_plan(protocol, k, s, rules))

@@ -245,3 +245,10 @@ def test_loop_compression_expands_back_exactly(body: list[tuple[int, int]], reps
     assert [h.duration for h in flat] == d.tolist() and [h.current for h in flat] == c.tolist()
     steps = sum(len(i.body) + 1 if isinstance(i, Repeat) else 1 for i in items)
     assert steps <= len(seq)
+
+
+def test_cycler_current_range_is_checked(lib: Library, tmp_path: Path) -> None:
+    with pytest.raises(InputError, match=r"step 1 \(profile\): needs 12 A, beyond the cycler's 10 A"):
+        export(lib[1], Format.MACCOR, tmp_path, max_current_a=10.0)
+    assert not list(tmp_path.iterdir())
+    export(lib[1], Format.MACCOR, tmp_path, max_current_a=15.0)

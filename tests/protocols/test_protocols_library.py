@@ -186,3 +186,27 @@ def test_soc_window_rule_for_a_net_discharging_profile() -> None:
     assert p.soc(2.7, 0.2).min() > 0
     assert not soc_window_ok(p, 0.2)  # ... but the paper excludes net discharge from 20 %
     assert soc_window_ok(p, 0.4)
+
+
+def test_select_by_generating_parameters(lib: Library) -> None:
+    """Selections are compared with the paper's Table 10 by parameters, not ids."""
+    hits = lib.select(kind="pulse", soc0=0.6, width_s=10.0, rest_factor=2, direction="charge")
+    assert [p.params["total_s"] for p in hits] == [900.0, 1800.0, 3600.0]  # 600 s breaks 5C at n = 2
+    assert lib.select(kind="drive", cycle="dc2", soc0=0.4)[0].id == 738
+    with pytest.raises(InputError, match="unknown kind"):
+        lib.select(kind="square")
+
+
+def test_protocols_never_imports_battlab_or_drivers() -> None:
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, pkgutil, importlib, protocols\n"
+        "for m in pkgutil.walk_packages(protocols.__path__, 'protocols.'):\n"
+        "    importlib.import_module(m.name)\n"
+        "bad = sorted(n for n in sys.modules if n.split('.')[0] in ('battlab', 'drivers', 'pybamm'))\n"
+        "print(','.join(bad))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == ""
