@@ -14,8 +14,9 @@ Grid (chosen to reproduce the paper's counts exactly; see ``GRID``)
              (see :mod:`protocols.drive_cycles`).
 
 Amplitude: the L1 normalisation fixes it (A = 1 Ah / on-time), so Table 6's amplitude axis (0.5C-5C) is not a
-grid variable; (w, n, T) set the on-time and hence the amplitude, which spans 0.67C (w = 1000 s, n = 1,
-T = 3600 s: 2000 s on) to 5C.
+grid variable; (w, n, T) set the on-time and hence the amplitude: pulses take 0.67C (w = 1000 s, n = 1,
+T = 3600 s: 2000 s on) to 4.44C (300 s on) in eight levels, sinusoids peak at 0.57C-4.44C, drive cycles at
+3.2C-4.8C; combinations that would exceed 5C are removed by the current filter.
 
 Filters, applied in this order (``Library.counts`` reports the count after each):
     1. ``fits``: a pulse train needs at least two pulses in T (T >= (2 + n) w); sines and drives always pass;
