@@ -100,11 +100,6 @@ def test_table_interpolates_and_is_flat_outside() -> None:
     np.testing.assert_allclose(_casadi(_TABLE, inside), _TABLE(inside), atol=1e-14)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="Table's CasADi branch extrapolates linearly while numpy is flat beyond the ends "
-    "(fix: clamp x with fmin/fmax before ca.interpolant); remove this mark once fixed",
-)
 def test_table_casadi_is_flat_outside() -> None:
     x = np.array([-0.5, 1.5])
     np.testing.assert_allclose(_casadi(_TABLE, x), _TABLE(x), atol=1e-14)

@@ -1,0 +1,342 @@
+"""Cells: immutable sets of parameter values (numbers and functions), loaded from built-ins, TOML or BPX.
+
+A :class:`Cell` holds every value the DFN–thermal model needs, keyed by the ASCII names of :data:`KEYS`, with
+the source of each literature value. The 18 identified parameters keep the names of
+:mod:`battlab.parameters`. Cells are values: :meth:`Cell.with_values` returns a new cell.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+from scipy.optimize import brentq
+
+from battlab import parameters
+from battlab.functions import Expr, Function, Table, as_function, evaluate, to_json
+from protocols.errors import InputError
+
+F = 96485.33212  # Faraday constant [C/mol]
+R_GAS = 8.314462618  # gas constant [J/(mol K)]
+
+
+@dataclass(frozen=True)
+class Key:
+    """One model input: unit, meaning, whether it is a function (of which variable) and whether required."""
+
+    unit: str
+    meaning: str
+    function_of: str | None = None  # "sto" (stoichiometry) or "c_e" [mol/m3]
+    required: bool = True
+    positive: bool = True  # a value ≤ 0 is physically impossible
+    fraction: bool = False  # must lie in (0, 1)
+
+
+def _electrode(s: str, name: str) -> dict[str, Key]:
+    return {
+        f"L_{s}": Key("m", f"{name} thickness"),
+        f"eps_s_{s}": Key("1", f"{name} active material volume fraction", fraction=True),
+        f"eps_e_{s}": Key("1", f"{name} electrolyte volume fraction (porosity)", fraction=True),
+        f"R_s_{s}": Key("m", f"{name} particle radius"),
+        f"c_max_{s}": Key("mol/m3", f"{name} maximum lithium concentration"),
+        f"D_s_{s}": Key("m2/s", f"{name} solid diffusivity at T_ref"),
+        f"D_s_{s}_shape": Key("1", f"{name} solid diffusivity factor vs stoichiometry", "sto", required=False),
+        f"sigma_{s}": Key("S/m", f"{name} solid conductivity"),
+        f"brugg_s_{s}": Key("1", f"{name} Bruggeman exponent of the solid (0: conductivity as given)", positive=False),
+        f"brugg_{s}": Key("1", f"{name} Bruggeman exponent of the electrolyte"),
+        f"B_{s}": Key("1", f"{name} electrolyte transport efficiency (overrides Bruggeman)", required=False),
+        f"k_{s}": Key("A/m2 (m3/mol)^1.5", f"{name} reaction rate constant at T_ref (eq. A18)"),
+        f"R_f_{s}": Key("Ohm m2", f"{name} film resistance (eq. A19)", positive=False),
+        f"U_{s}": Key("V", f"{name} open-circuit potential at T_ref", "sto"),
+        f"dUdT_{s}": Key("V/K", f"{name} entropic coefficient", "sto", positive=False),
+        f"E_D_s_{s}": Key("J/mol", f"{name} activation energy of D_s (eq. B5)", positive=False),
+        f"E_k_{s}": Key("J/mol", f"{name} activation energy of k (eq. B5)", positive=False),
+    }
+
+
+#: Every model input. Values are SI; temperatures in K.
+KEYS: dict[str, Key] = {
+    **_electrode("n", "negative electrode"),
+    **_electrode("p", "positive electrode"),
+    "L_s": Key("m", "separator thickness"),
+    "eps_e_s": Key("1", "separator electrolyte volume fraction", fraction=True),
+    "brugg_s": Key("1", "separator Bruggeman exponent"),
+    "B_s": Key("1", "separator transport efficiency (overrides Bruggeman)", required=False),
+    "A": Key("m2", "electrode area (all layers in parallel)"),
+    "c_e0": Key("mol/m3", "initial electrolyte concentration"),
+    "t_plus": Key("1", "cation transference number", fraction=True),
+    "D_e": Key("m2/s", "electrolyte diffusivity at T_ref", "c_e"),
+    "kappa": Key("S/m", "electrolyte conductivity at T_ref", "c_e"),
+    "dlnf": Key("1", "d ln f / d ln c_e (eq. A11)", "c_e", positive=False),
+    "D_e_scale": Key("1", "factor on D_e(c_e)"),
+    "kappa_scale": Key("1", "factor on kappa(c_e)"),
+    "dlnf_scale": Key("1", "factor on d ln f / d ln c_e", positive=False),
+    "E_D_e": Key("J/mol", "activation energy of D_e (eq. B5)", positive=False),
+    "E_kappa": Key("J/mol", "activation energy of kappa (eq. B5)", positive=False),
+    "T_ref": Key("K", "reference temperature"),
+    "C1": Key("J/K", "heat capacity of the core (eq. B1)"),
+    "C2": Key("J/K", "heat capacity of the surface (eq. B2)"),
+    "h12": Key("W/K", "core-to-surface heat transfer (eq. B1)"),
+    "h2a": Key("W/K", "surface-to-ambient heat transfer (eq. B2); 0 = adiabatic", positive=False),
+    "R_c": Key("Ohm", "contact resistance (eq. A21)", positive=False),
+    "V_min": Key("V", "lower voltage cut-off"),
+    "V_max": Key("V", "upper voltage cut-off"),
+    "Q_nom": Key("A h", "nominal capacity (defines 1C)"),
+    "T_max": Key("K", "maximum surface temperature"),
+    "n_Li": Key("mol", "cyclable lithium in the solid phase (eq. 10)", required=False),
+    "sto_n_0": Key("1", "negative stoichiometry at 0 % SOC", required=False, fraction=True),
+    "sto_n_100": Key("1", "negative stoichiometry at 100 % SOC", required=False, fraction=True),
+    "sto_p_0": Key("1", "positive stoichiometry at 0 % SOC", required=False, fraction=True),
+    "sto_p_100": Key("1", "positive stoichiometry at 100 % SOC", required=False, fraction=True),
+}
+
+Value = float | Function
+
+
+def _check_value(key: str, value: Any) -> Value:
+    if key not in KEYS:
+        raise InputError(f"unknown cell parameter {key!r}")
+    spec = KEYS[key]
+    v = as_function(value, ("x",))
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise InputError(f"cell parameter {key}: expected a finite number [{spec.unit}], got {value!r}")
+        if spec.positive and v <= 0:
+            raise InputError(f"cell parameter {key} ({spec.meaning}) must be positive [{spec.unit}], got {v:g}")
+        if not spec.positive and key.startswith(("R_f", "R_c", "h2a")) and v < 0:
+            raise InputError(f"cell parameter {key} ({spec.meaning}) must be ≥ 0 [{spec.unit}], got {v:g}")
+        if spec.fraction and not 0.0 < v < 1.0:
+            raise InputError(f"cell parameter {key} ({spec.meaning}) must lie in (0, 1), got {v:g}")
+    elif spec.function_of is None:
+        raise InputError(f"cell parameter {key} ({spec.meaning}) must be a number [{spec.unit}], got a function")
+    return v
+
+
+@dataclass(frozen=True, eq=False)
+class Cell:
+    """An immutable cell: ``values[key]`` is a number (SI) or a function; ``sources[key]`` cites it."""
+
+    name: str
+    values: Mapping[str, Value]
+    sources: Mapping[str, str] = field(default_factory=dict)
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        vals = {k: _check_value(k, v) for k, v in self.values.items()}
+        missing = [k for k, s in KEYS.items() if s.required and k not in vals]
+        if missing:
+            raise InputError(f"cell {self.name!r}: missing parameter(s) {', '.join(missing)}")
+        windows = [k for k in ("sto_n_0", "sto_n_100", "sto_p_0", "sto_p_100") if k in vals]
+        if windows and len(windows) != 4:
+            raise InputError(f"cell {self.name!r}: give all four stoichiometry limits or none, got {windows}")
+        if not windows and "n_Li" not in vals:
+            raise InputError(f"cell {self.name!r}: needs n_Li or the four stoichiometry limits sto_*_0/100")
+        for s in ("n", "p"):
+            total = vals[f"eps_s_{s}"] + vals[f"eps_e_{s}"]
+            if total >= 1.0:
+                raise InputError(f"cell {self.name!r}: eps_s_{s} + eps_e_{s} = {total:g} must be below 1")
+        if vals["V_min"] >= vals["V_max"]:
+            raise InputError(f"cell {self.name!r}: V_min {vals['V_min']} must be below V_max {vals['V_max']}")
+        object.__setattr__(self, "values", MappingProxyType(vals))
+        object.__setattr__(self, "sources", MappingProxyType(dict(self.sources)))
+
+    # --- construction ---------------------------------------------------------------------------------
+    @classmethod
+    def load(cls, name_or_path: str | Path) -> Cell:
+        """A built-in cell (``nca18650``, ``nca18650-true``), a cell TOML file or a BPX JSON file."""
+        text = str(name_or_path)
+        if text == "nca18650-true":
+            base = cls.load("nca18650")
+            cell = base.with_values(**{p.name: p.truth for p in parameters.DYNAMIC})
+            return cell.renamed("nca18650-true", "the paper's cell at its Table 11 identified values")
+        builtin = resources.files("battlab.cells").joinpath(f"{text}.toml")
+        if builtin.is_file():
+            with builtin.open("rb") as fh:
+                return cls._from_toml_dict(tomllib.load(fh), text)
+        path = Path(text)
+        if not path.exists():
+            names = sorted(p.name.removesuffix(".toml") for p in resources.files("battlab.cells").iterdir()
+                           if p.name.endswith(".toml"))
+            raise InputError(f"cell {text!r}: not a built-in cell ({', '.join([*names, 'nca18650-true'])}) nor a file")
+        if path.suffix == ".json":
+            return cls.from_bpx(path)
+        if path.suffix == ".toml":
+            try:
+                data = tomllib.loads(path.read_text())
+            except tomllib.TOMLDecodeError as exc:
+                raise InputError(f"{path}: not valid TOML ({exc})") from None
+            return cls._from_toml_dict(data, str(path))
+        raise InputError(f"{path}: expected a BPX .json or a cell .toml file")
+
+    @classmethod
+    def _from_toml_dict(cls, data: dict[str, Any], where: str) -> Cell:
+        params = data.get("parameters")
+        if not isinstance(params, dict):
+            raise InputError(f"{where}: missing [parameters] table")
+        values: dict[str, Any] = {}
+        sources: dict[str, str] = {}
+        for key, entry in params.items():
+            if isinstance(entry, dict) and "value" in entry:
+                values[key] = entry["value"]
+                if "source" in entry:
+                    sources[key] = str(entry["source"])
+            else:
+                values[key] = entry
+        try:
+            return cls(str(data.get("name", where)), values, sources, str(data.get("description", "")))
+        except InputError as exc:
+            raise InputError(f"{where}: {exc}") from None
+
+    @classmethod
+    def from_bpx(cls, path: str | Path, *, target_soc: float | None = None) -> Cell:
+        """Read a BPX JSON file (validated by the ``bpx`` package); see :mod:`battlab.bpx_io`."""
+        from battlab.bpx_io import read_bpx
+
+        return read_bpx(Path(path))
+
+    def to_bpx(self, path: str | Path, **extra: Any) -> Path:
+        """Write the cell as BPX JSON (validated by the ``bpx`` package); see :mod:`battlab.bpx_io`."""
+        from battlab.bpx_io import write_bpx
+
+        return write_bpx(self, Path(path), **extra)
+
+    def to_toml_dict(self) -> dict[str, Any]:
+        """The TOML representation read by :meth:`load`."""
+        params: dict[str, Any] = {}
+        for k, v in self.values.items():
+            entry: dict[str, Any] = {"value": to_json(v)}
+            if k in self.sources:
+                entry["source"] = self.sources[k]
+            params[k] = entry
+        return {"name": self.name, "description": self.description, "parameters": params}
+
+    # --- values ---------------------------------------------------------------------------------------
+    def __getitem__(self, key: str) -> Value:
+        try:
+            return self.values[key]
+        except KeyError:
+            raise InputError(f"cell {self.name!r} has no parameter {key!r}") from None
+
+    def get(self, key: str, default: Value | None = None) -> Value | None:
+        return self.values.get(key, default)
+
+    def with_values(self, **updates: Any) -> Cell:
+        """A new cell with some values replaced; unknown names and impossible values are errors."""
+        for k in updates:
+            if k not in KEYS:
+                raise InputError(f"unknown parameter {k!r}; dynamic parameters are {', '.join(parameters.NAMES)}")
+        vals = dict(self.values)
+        vals.update(updates)
+        src = {k: v for k, v in self.sources.items() if k not in updates}
+        return Cell(self.name, vals, src, self.description)
+
+    def renamed(self, name: str, description: str | None = None) -> Cell:
+        return Cell(name, self.values, self.sources, self.description if description is None else description)
+
+    def normalised(self, name: str) -> float:
+        """θ̄ of a dynamic parameter (eq. 1); may lie outside [0, 1]."""
+        return parameters.spec(name).normalise(float(self[name]))
+
+    def with_normalised(self, **updates: float) -> Cell:
+        """A new cell with dynamic parameters set from θ̄ (eq. 1)."""
+        return self.with_values(**{k: parameters.spec(k).denormalise(float(v)) for k, v in updates.items()})
+
+    def dynamic_values(self) -> dict[str, float]:
+        return {n: float(self[n]) for n in parameters.NAMES}
+
+    def hash(self) -> str:
+        """SHA-256 of the canonical JSON of all values (keys sorted): identifies the parameter set."""
+        blob = json.dumps({k: to_json(v) for k, v in sorted(self.values.items())}, sort_keys=True)
+        return hashlib.sha256(blob.encode()).hexdigest()
+
+    # --- equilibrium ----------------------------------------------------------------------------------
+    def fn(self, key: str, x: Any, backend: str = "numpy") -> Any:
+        """Evaluate a function-valued parameter (or a constant) at ``x``."""
+        return evaluate(self[key], x, backend)
+
+    def electrode_moles(self, s: str) -> float:
+        """H± = ε_s L A c_max [mol] (eq. 11)."""
+        return float(self[f"eps_s_{s}"]) * float(self[f"L_{s}"]) * float(self["A"]) * float(self[f"c_max_{s}"])
+
+    def stoichiometry_window(self) -> tuple[float, float, float, float]:
+        """(θ⁻ at 0 %, θ⁻ at 100 %, θ⁺ at 0 %, θ⁺ at 100 %): given, or from n_Li and the limits (eqs. 10, 20)."""
+        if "sto_n_0" in self.values:
+            n0, n1, p0, p1 = (float(self[k]) for k in ("sto_n_0", "sto_n_100", "sto_p_0", "sto_p_100"))
+            return n0, n1, p0, p1
+        return _window_from_lithium(self)
+
+    def stoichiometry(self, soc: float) -> tuple[float, float]:
+        """(θ⁻, θ⁺) at a state of charge, linear in each electrode between its 0 % and 100 % points (eq. 20)."""
+        if not 0.0 <= soc <= 1.0 or not math.isfinite(soc):
+            raise InputError(f"SOC must be in [0, 1], got {soc}")
+        n0, n1, p0, p1 = self.stoichiometry_window()
+        return n0 + soc * (n1 - n0), p0 + soc * (p1 - p0)
+
+    def ocv(self, soc: Any) -> Any:
+        """Open-circuit voltage U⁺(θ⁺) − U⁻(θ⁻) at T_ref [V] (eq. 14)."""
+        n0, n1, p0, p1 = self.stoichiometry_window()
+        soc = np.asarray(soc, float)
+        return self.fn("U_p", p0 + soc * (p1 - p0)) - self.fn("U_n", n0 + soc * (n1 - n0))
+
+    def soc_from_voltage(self, voltage: float) -> float:
+        """The SOC whose OCV equals a rest voltage [V]; outside the OCV range is an error."""
+        lo, hi = float(self.ocv(0.0)), float(self.ocv(1.0))
+        if not lo - 1e-9 <= voltage <= hi + 1e-9:
+            raise InputError(f"rest voltage {voltage:.4f} V is outside the cell's OCV range [{lo:.4f}, {hi:.4f}] V")
+        if voltage <= lo:
+            return 0.0
+        if voltage >= hi:
+            return 1.0
+        return float(brentq(lambda s: float(self.ocv(s)) - voltage, 0.0, 1.0, xtol=1e-12))
+
+    def capacity(self) -> float:
+        """Capacity between 0 % and 100 % SOC at equilibrium [A h] (eq. 21, in A h)."""
+        n0, n1, _, _ = self.stoichiometry_window()
+        return abs(n1 - n0) * self.electrode_moles("n") * F / 3600.0
+
+    def lithium_moles(self) -> float:
+        """Cyclable lithium in the solid at the window's stoichiometries [mol] (eq. 10)."""
+        if "n_Li" in self.values:
+            return float(self["n_Li"])
+        n0, _, p0, _ = self.stoichiometry_window()
+        return self.electrode_moles("n") * n0 + self.electrode_moles("p") * p0
+
+
+def _window_from_lithium(cell: Cell) -> tuple[float, float, float, float]:
+    """θ± at V_max and V_min with θ⁺ = (n_Li − H⁻θ⁻)/H⁺ (eqs. 10, 15, 18, 20)."""
+    hn, hp, nli = cell.electrode_moles("n"), cell.electrode_moles("p"), float(cell["n_Li"])
+
+    def theta_p(tn: float) -> float:
+        return (nli - hn * tn) / hp
+
+    def ocv(tn: float) -> float:
+        return float(cell.fn("U_p", theta_p(tn)) - cell.fn("U_n", tn))
+
+    # θ⁻ range where both stoichiometries are within (0, 1)
+    lo = max(1e-6, (nli - hp * (1 - 1e-6)) / hn)
+    hi = min(1 - 1e-6, (nli - hp * 1e-6) / hn)
+    if lo >= hi:
+        raise InputError(f"cell {cell.name!r}: n_Li = {nli} mol does not fit the electrodes' capacities")
+    out = []
+    for v in (float(cell["V_min"]), float(cell["V_max"])):
+        try:
+            out.append(brentq(lambda t, v=v: ocv(t) - v, lo, hi, xtol=1e-14))
+        except ValueError:
+            raise InputError(
+                f"cell {cell.name!r}: the OCV does not reach {v} V for n_Li = {nli} mol "
+                f"(range {ocv(lo):.3f}–{ocv(hi):.3f} V)"
+            ) from None
+    n0, n1 = out
+    return n0, n1, theta_p(n0), theta_p(n1)
+
+
+__all__ = ["Cell", "KEYS", "Key", "F", "R_GAS", "Expr", "Table"]

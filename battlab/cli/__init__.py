@@ -1,0 +1,43 @@
+"""The ``battlab`` command. Every user mistake is one line on stderr and exit code 2, never a traceback."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from battlab import __version__
+from protocols.errors import InputError
+
+
+class _Main(click.Group):
+    """A group that turns a user's mistake (bad file, field, value) into one line and a non-zero exit."""
+
+    def invoke(self, ctx: click.Context) -> object:
+        try:
+            return super().invoke(ctx)
+        except InputError as exc:
+            click.echo(f"error: {exc}", err=True)
+            sys.exit(2)
+        except (FileNotFoundError, IsADirectoryError, PermissionError) as exc:
+            click.echo(f"error: {exc.filename}: {exc.strerror}", err=True)
+            sys.exit(2)
+
+
+@click.group(cls=_Main, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="battlab")
+def main() -> None:
+    """battlab: optimal experiments, DFN identification with confidence intervals, and model diagnosis."""
+
+
+def _register() -> None:
+    from battlab.cli.export import export
+    from battlab.cli.library import library
+    from battlab.cli.simulate import simulate
+    from battlab.cli.virtual_tester import virtual_tester
+
+    for cmd in (simulate, library, export, virtual_tester):
+        main.add_command(cmd)
+
+
+_register()

@@ -1,0 +1,1 @@
+"""Data files: simulation results and logged data as BDF CSV and HDF5."""

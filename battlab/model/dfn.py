@@ -1,0 +1,279 @@
+"""The DFN–thermal model (paper Appendices A and B) as a finite-volume DAE in CasADi.
+
+Equations, with one global x from the negative current collector (x = 0) to the positive one (x = L), current
+positive = discharge inside the model (the paper's and PyBaMM's convention; :mod:`battlab.simulate` converts),
+j as the interfacial current density i = F j_n [A m⁻²] (positive = lithium leaving the solid):
+
+- solid diffusion (A1–A2) in the normalised radius ξ = r/R_s: ∂θ/∂t = D/(R_s² ξ²) ∂ξ(ξ² ∂ξ θ),
+  −(D c_max/R_s) ∂ξθ(1) = i/F, so R_s is a parameter (sensitivities w.r.t. it exist);
+- electrolyte diffusion (A3–A8): ε_e ∂c_e/∂t = ∂x(D_e^eff ∂x c_e) + (1 − t⁺) a_s i/F, zero flux at the
+  collectors, continuity of c_e and flux at the region interfaces (two-point fluxes with harmonic means);
+- charge in the solid (A9–A10) and the electrolyte (A11–A16): ∂x i_e = a_s i, i_s + i_e = I/A,
+  i_e = −κ^eff ∂xφ_e + κ^eff (2RT₁/F)(1 − t⁺)(1 + dlnf) ∂x ln c_e; φ_s = 0 at x = 0 (the reference, A12's
+  role), no solid current at the separator, I/A at x = L;
+- Butler–Volmer (A17–A20), α_a = α_c = 0.5: i = 2 i₀ sinh(F η/(2RT₁)),
+  i₀ = k √(c_ss (c_max − c_ss) c_e), η = φ_s − φ_e − U(c_ss) − R_f i;
+- voltage (A21): V = φ_s(L) − φ_s(0) − R_c I;
+- thermal (B1–B4) with Bernardi's heat Q = I (U_bulk − V) − I T₁ ∂U_bulk/∂T (DESIGN.md errata) and the
+  Arrhenius law ψ = ψ_ref exp[(E/R)(1/T_ref − 1/T₁)] (B5 corrected) for D_s, D_e, κ, k;
+- effective properties: ψ^eff = ψ ε^b (Bruggeman) or ψ B (a BPX transport efficiency); a_s = 3 ε_s/R_s.
+
+The 18 identified parameters enter as normalised values θ̄ (eq. 1), symbolic inputs of every function, so the
+same compiled functions serve any parameter values and give derivatives w.r.t. θ̄ directly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from battlab import parameters
+from battlab.cell import R_GAS, Cell, F
+from battlab.model.mesh import Mesh
+
+C_SCALE = 1000.0  #: electrolyte concentration scale [mol m⁻³]: the unknown is c_e / C_SCALE
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where each variable sits in the unknown vector y = [x (differential) | z (algebraic)]."""
+
+    mesh: Mesh
+
+    @property
+    def n_sn(self) -> int:
+        return self.mesh.n_n * self.mesh.n_r
+
+    @property
+    def n_sp(self) -> int:
+        return self.mesh.n_p * self.mesh.n_r
+
+    @property
+    def nx(self) -> int:
+        """Differential states: θ⁻ shells, θ⁺ shells, c_e, T₁ − T_ref, T₂ − T_ref."""
+        return self.n_sn + self.n_sp + self.mesh.n_x + 2
+
+    @property
+    def nz(self) -> int:
+        """Algebraic states: φ_s⁻, φ_s⁺, φ_e, i⁻, i⁺."""
+        m = self.mesh
+        return 2 * (m.n_n + m.n_p) + m.n_x
+
+    @property
+    def ny(self) -> int:
+        return self.nx + self.nz
+
+    def slices(self) -> dict[str, slice]:
+        m = self.mesh
+        out: dict[str, slice] = {}
+        pos = 0
+        for name, n in (
+            ("sn", self.n_sn), ("sp", self.n_sp), ("ce", m.n_x), ("T1", 1), ("T2", 1),
+            ("phis_n", m.n_n), ("phis_p", m.n_p), ("phie", m.n_x), ("i_n", m.n_n), ("i_p", m.n_p),
+        ):
+            out[name] = slice(pos, pos + n)
+            pos += n
+        return out
+
+
+def _arrhenius(E: float, T_ref: float, T: ca.SX) -> ca.SX:
+    """exp[(E/R)(1/T_ref − 1/T)]: rises with T for E > 0 (B5 with the sign corrected)."""
+    return ca.exp(E / R_GAS * (1.0 / T_ref - 1.0 / T))
+
+
+def _shape(cell: Cell, key: str, x: ca.SX) -> ca.SX | float:
+    f = cell.get(key)
+    return 1.0 if f is None else cell.fn(key, x, backend="casadi")
+
+
+class DFN:
+    """Builds the symbolic residual of one cell on one mesh."""
+
+    def __init__(self, cell: Cell, mesh: Mesh | None = None, *, isothermal: bool = False) -> None:
+        mesh = mesh or Mesh()
+        self.cell = cell
+        self.mesh = mesh
+        self.layout = Layout(mesh)
+        self.isothermal = isothermal
+        self.T_ref = float(cell["T_ref"])
+        self.i_ref = float(cell["Q_nom"]) / float(cell["A"])  # 1C current density [A m⁻²]
+        self.xi_f = mesh.radial_faces()
+        self.xi_c = 0.5 * (self.xi_f[1:] + self.xi_f[:-1])
+        self.vol = (self.xi_f[1:] ** 3 - self.xi_f[:-1] ** 3) / 3.0  # shell volumes / R³
+
+    # --- parameters -----------------------------------------------------------------------------------
+    def physical(self, theta_bar: ca.SX) -> dict[str, ca.SX]:
+        """θ from θ̄ (eq. 1) as symbolic expressions."""
+        out = {}
+        for k, spec in enumerate(parameters.DYNAMIC):
+            tb = theta_bar[k]
+            if spec.scale is parameters.Scale.LOG:
+                out[spec.name] = ca.exp(np.log(spec.lower) + tb * (np.log(spec.upper) - np.log(spec.lower)))
+            else:
+                out[spec.name] = spec.lower + tb * (spec.upper - spec.lower)
+        return out
+
+    # --- the model ------------------------------------------------------------------------------------
+    def equations(self, y: ca.SX, I_dis: ca.SX, T_amb: ca.SX, theta_bar: ca.SX) -> dict[str, ca.SX]:
+        """f (time derivatives of x), g (algebraic residuals, scaled), V and diagnostics at state y.
+
+        I_dis: cell current [A], positive = discharge. T_amb: ambient temperature [K].
+        """
+        cell, m, sl = self.cell, self.mesh, self.layout.slices()
+        p = self.physical(theta_bar)
+        A = float(cell["A"])
+        i_app = I_dis / A
+        T1 = self.T_ref + y[sl["T1"]]
+        T2 = self.T_ref + y[sl["T2"]]
+        ce = y[sl["ce"]] * C_SCALE
+        nr = m.n_r
+
+        L = {"n": float(cell["L_n"]), "s": float(cell["L_s"]), "p": float(cell["L_p"])}
+        nreg = {"n": m.n_n, "s": m.n_s, "p": m.n_p}
+        dx = np.concatenate([np.full(nreg[r], L[r] / nreg[r]) for r in ("n", "s", "p")])
+        eps = {"n": p["eps_e_n"], "s": p["eps_e_s"], "p": p["eps_e_p"]}
+
+        def transport(r: str) -> ca.SX:
+            key = f"B_{r}"
+            if key in cell.values:
+                return float(cell[key])
+            return eps[r] ** float(cell[f"brugg_{r}"])
+
+        eps_x = ca.vertcat(*[ca.repmat(eps[r], nreg[r], 1) for r in ("n", "s", "p")])
+        tort_x = ca.vertcat(*[ca.repmat(transport(r), nreg[r], 1) for r in ("n", "s", "p")])
+
+        # --- particles (A1, A2, A20) ---
+        f_s: dict[str, ca.SX] = {}
+        surf: dict[str, ca.SX] = {}
+        bulk: dict[str, ca.SX] = {}
+        i_int: dict[str, ca.SX] = {}
+        a_s: dict[str, ca.SX] = {}
+        for e in ("n", "p"):
+            nxe = nreg[e]
+            sto = ca.reshape(y[sl["s" + e]], nr, nxe)  # column per x cell, row per shell
+            R = p[f"R_s_{e}"]
+            D = p[f"D_s_{e}"] * _arrhenius(float(cell[f"E_D_s_{e}"]), self.T_ref, T1)
+            cmax = float(cell[f"c_max_{e}"])
+            ii = y[sl[f"i_{e}"]]
+            i_int[e] = ii
+            a_s[e] = 3.0 * float(cell[f"eps_s_{e}"]) / R
+            dxi = np.diff(self.xi_c)
+            rows = []
+            surf_e = []
+            bulk_e = []
+            for c in range(nxe):
+                s = sto[:, c]
+                s_face = 0.5 * (s[1:] + s[:-1])
+                flux = (self.xi_f[1:-1] ** 2) * _shape(cell, f"D_s_{e}_shape", s_face) * (s[1:] - s[:-1]) / dxi
+                flux_out = -R * ii[c] / (F * cmax * D)  # ξ² ∂ξθ at ξ = 1, from −D c_max/R ∂ξθ = i/F
+                shape_surf = _shape(cell, f"D_s_{e}_shape", s[-1])
+                flux_full = ca.vertcat(0.0, flux, flux_out)
+                dsdt = D / R**2 * (flux_full[1:] - flux_full[:-1]) / self.vol
+                rows.append(dsdt)
+                # surface value: quadratic through the last two shell centres with the surface gradient
+                g1 = flux_out / shape_surf
+                d1, d2 = self.xi_c[-1] - 1.0, self.xi_c[-2] - 1.0
+                c2 = (s[-1] - s[-2] - g1 * (d1 - d2)) / (d1**2 - d2**2)
+                surf_e.append(s[-1] - g1 * d1 - c2 * d1**2)
+                bulk_e.append(ca.dot(s, self.vol) / self.vol.sum())
+            f_s[e] = ca.vertcat(*rows)
+            surf[e] = ca.vertcat(*surf_e)
+            bulk[e] = ca.vertcat(*bulk_e)
+
+        # --- electrolyte transport (A3–A8, A11, A13–A16) ---
+        tp = p["t_plus"]
+        De = p["D_e_scale"] * cell.fn("D_e", ce, backend="casadi") * _arrhenius(float(cell["E_D_e"]), self.T_ref, T1)
+        kap = p["kappa_scale"] * cell.fn("kappa", ce, backend="casadi") * _arrhenius(
+            float(cell["E_kappa"]), self.T_ref, T1
+        )
+        tdf = 1.0 + p["dlnf_scale"] * cell.fn("dlnf", ce, backend="casadi")
+        De_eff = De * tort_x
+        kap_eff = kap * tort_x
+        half = dx / 2.0
+        # two-point face coefficients: 1 / (Δx_i/(2k_i) + Δx_{i+1}/(2k_{i+1}))
+        De_f = 1.0 / (half[:-1] / De_eff[:-1] + half[1:] / De_eff[1:])
+        kap_f = 1.0 / (half[:-1] / kap_eff[:-1] + half[1:] / kap_eff[1:])
+        tdf_f = 0.5 * (tdf[:-1] + tdf[1:])
+        N_f = -De_f * (ce[1:] - ce[:-1])  # diffusive flux [mol m⁻² s⁻¹]
+        phie = y[sl["phie"]]
+        dlnc = ca.log(ce[1:]) - ca.log(ce[:-1])
+        ie_f = -kap_f * ((phie[1:] - phie[:-1]) - 2.0 * R_GAS * T1 / F * (1.0 - tp) * tdf_f * dlnc)
+        zero = ca.SX(1, 1)
+        N_full = ca.vertcat(zero, N_f, zero)
+        ie_full = ca.vertcat(zero, ie_f, zero)
+        src = ca.vertcat(a_s["n"] * i_int["n"], ca.SX.zeros(m.n_s), a_s["p"] * i_int["p"])  # a i [A m⁻³]
+        dce = (-(N_full[1:] - N_full[:-1]) / dx + (1.0 - tp) * src / F) / eps_x / C_SCALE
+        g_e = ((ie_full[1:] - ie_full[:-1]) - src * dx) / self.i_ref
+
+        # --- solid charge (A9, A10) ---
+        g_s = {}
+        phis_bc = {}
+        for e in ("n", "p"):
+            phis = y[sl[f"phis_{e}"]]
+            h = L[e] / nreg[e]
+            sig = p[f"sigma_{e}"] * float(cell[f"eps_s_{e}"]) ** float(cell[f"brugg_s_{e}"])
+            is_f = -sig * (phis[1:] - phis[:-1]) / h
+            if e == "n":
+                left = -sig * (phis[0] - 0.0) / (h / 2.0)  # φ_s(0) = 0: the potential reference
+                right = zero
+            else:
+                left = zero
+                right = i_app
+                phis_bc["p"] = phis[-1] - (h / 2.0) * i_app / sig  # φ_s(L) from the collector's current
+            is_full = ca.vertcat(left, is_f, right)
+            g_s[e] = ((is_full[1:] - is_full[:-1]) + a_s[e] * i_int[e] * h) / self.i_ref
+
+        # --- kinetics (A17–A19) ---
+        g_bv = {}
+        U_bulk = 0.0
+        dUdT_bulk = 0.0
+        off = {"n": 0, "p": m.n_n + m.n_s}
+        for e in ("n", "p"):
+            cmax = float(cell[f"c_max_{e}"])
+            k = p[f"k_{e}"] * _arrhenius(float(cell[f"E_k_{e}"]), self.T_ref, T1)
+            ce_e = ce[off[e] : off[e] + nreg[e]]
+            css = surf[e] * cmax
+            i0 = k * ca.sqrt(ca.fmax(css, 1e-6) * ca.fmax(cmax - css, 1e-6) * ca.fmax(ce_e, 1e-6))
+            U = cell.fn(f"U_{e}", surf[e], backend="casadi")
+            eta = y[sl[f"phis_{e}"]] - phie[off[e] : off[e] + nreg[e]] - U - p[f"R_f_{e}"] * i_int[e]
+            g_bv[e] = (i_int[e] - 2.0 * i0 * ca.sinh(F * eta / (2.0 * R_GAS * T1))) / self.i_ref
+            sign = 1.0 if e == "p" else -1.0
+            U_bulk = U_bulk + sign * ca.sum1(cell.fn(f"U_{e}", bulk[e], backend="casadi")) / nreg[e]
+            dUdT_bulk = dUdT_bulk + sign * ca.sum1(cell.fn(f"dUdT_{e}", bulk[e], backend="casadi")) / nreg[e]
+
+        V = phis_bc["p"] - float(cell["R_c"]) * I_dis
+
+        # --- thermal (B1–B3) ---
+        Q = I_dis * (U_bulk - V) - I_dis * T1 * dUdT_bulk
+        if self.isothermal:
+            dT1 = ca.SX(0.0)
+            dT2 = ca.SX(0.0)
+        else:
+            h12, h2a = float(cell["h12"]), float(cell["h2a"])
+            dT1 = (h12 * (T2 - T1) + Q) / float(cell["C1"])
+            dT2 = (h12 * (T1 - T2) + h2a * (T_amb - T2)) / float(cell["C2"])
+
+        f = ca.vertcat(f_s["n"], f_s["p"], dce, dT1, dT2)
+        g = ca.vertcat(g_s["n"], g_s["p"], g_e, g_bv["n"], g_bv["p"])
+        sto_surf = ca.vertcat(surf["n"], surf["p"])
+        return {"f": f, "g": g, "V": V, "T1": T1, "T2": T2, "Q": Q, "surf_n": surf["n"], "surf_p": surf["p"],
+                "sto_surf": sto_surf, "ce": ce}
+
+    def lithium(self, y: np.ndarray, theta_bar: np.ndarray) -> float:
+        """Moles of lithium in solid + electrolyte at state y (for conservation checks)."""
+        cell, m, sl = self.cell, self.mesh, self.layout.slices()
+        p = {s.name: s.denormalise(float(v)) for s, v in zip(parameters.DYNAMIC, theta_bar, strict=True)}
+        A = float(cell["A"])
+        total = 0.0
+        for e, n in (("n", m.n_n), ("p", m.n_p)):
+            sto = np.reshape(y[sl["s" + e]], (n, m.n_r))  # column-major reshape in CasADi = rows here
+            mean = sto @ self.vol / self.vol.sum()
+            h = float(cell[f"L_{e}"]) / n
+            total += float(np.sum(mean)) * h * A * float(cell[f"eps_s_{e}"]) * float(cell[f"c_max_{e}"])
+        ce = y[sl["ce"]] * C_SCALE
+        for r, start, n in (("n", 0, m.n_n), ("s", m.n_n, m.n_s), ("p", m.n_n + m.n_s, m.n_p)):
+            h = float(cell[f"L_{r}"]) / n
+            total += float(np.sum(ce[start : start + n])) * h * A * p[f"eps_e_{r}"]
+        return total

@@ -1,0 +1,105 @@
+"""The 18 identified dynamic parameters (paper Tables 2, 4, 11) and their normalisation (eq. 1).
+
+Bounds apply to identification only: :func:`normalise` and :func:`denormalise` accept values outside [0, 1].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+from protocols.errors import InputError
+
+
+class Scale(Enum):
+    """How a parameter is normalised to θ̄ (eq. 1)."""
+
+    LOG = "log"
+    LINEAR = "linear"
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    """One identified parameter: name, symbol, unit, bounds, nominal and the paper's Table 11 result."""
+
+    name: str
+    symbol: str
+    unit: str
+    lower: float
+    upper: float
+    nominal: float
+    truth: float
+    scale: Scale
+    description: str
+
+    def normalise(self, value: float) -> float:
+        """θ̄ from θ (eq. 1)."""
+        if self.scale is Scale.LOG:
+            if value <= 0:
+                raise InputError(f"{self.name} must be positive for log normalisation, got {value}")
+            return (math.log(value) - math.log(self.lower)) / (math.log(self.upper) - math.log(self.lower))
+        return (value - self.lower) / (self.upper - self.lower)
+
+    def denormalise(self, theta_bar: float) -> float:
+        """θ from θ̄ (inverse of eq. 1)."""
+        if self.scale is Scale.LOG:
+            return math.exp(math.log(self.lower) + theta_bar * (math.log(self.upper) - math.log(self.lower)))
+        return self.lower + theta_bar * (self.upper - self.lower)
+
+    def dvalue_dnormalised(self, value: float) -> float:
+        """dθ/dθ̄ at θ: the chain-rule factor from physical to normalised sensitivities."""
+        if self.scale is Scale.LOG:
+            return value * (math.log(self.upper) - math.log(self.lower))
+        return self.upper - self.lower
+
+
+_L, _N = Scale.LOG, Scale.LINEAR
+
+#: The registry, in the paper's Table 2 order. Units: SI.
+DYNAMIC: tuple[ParameterSpec, ...] = (
+    ParameterSpec("D_s_n", "D_s⁻", "m2/s", 2.25e-16, 1.05e-12, 3.90e-14, 2.634e-14, _L, "negative solid diffusivity"),
+    ParameterSpec("D_s_p", "D_s⁺", "m2/s", 2.00e-16, 1.00e-12, 1.00e-13, 6.625e-14, _L, "positive solid diffusivity"),
+    ParameterSpec("R_s_n", "R_s⁻", "m", 1.0e-6, 1.0e-4, 10.9e-6, 20.235e-6, _N, "negative particle radius"),
+    ParameterSpec("R_s_p", "R_s⁺", "m", 1.0e-6, 1.0e-4, 10.9e-6, 17.163e-6, _N, "positive particle radius"),
+    ParameterSpec("sigma_n", "σ⁻", "S/m", 50.0, 500.0, 100.0, 500.0, _L, "negative solid conductivity"),
+    ParameterSpec("sigma_p", "σ⁺", "S/m", 50.0, 500.0, 100.0, 500.0, _L, "positive solid conductivity"),
+    ParameterSpec("D_e_scale", "D_e(·)", "1", 0.5, 1.5, 1.0, 1.195, _N, "electrolyte diffusivity factor"),
+    ParameterSpec("eps_e_n", "ε_e⁻", "1", 0.18, 0.45, 0.3, 0.289, _N, "negative electrolyte volume fraction"),
+    ParameterSpec("eps_e_s", "ε_e^sep", "1", 0.45, 0.5, 0.5, 0.468, _N, "separator electrolyte volume fraction"),
+    ParameterSpec("eps_e_p", "ε_e⁺", "1", 0.18, 0.33, 0.3, 0.307, _N, "positive electrolyte volume fraction"),
+    ParameterSpec("kappa_scale", "κ(·)", "1", 0.5, 1.5, 1.0, 1.398, _N, "electrolyte conductivity factor"),
+    ParameterSpec("t_plus", "t_c⁰", "1", 0.36, 0.363, 0.363, 0.36, _N, "cation transference number"),
+    ParameterSpec("dlnf_scale", "dlnf/dlnc_e(·)", "1", 0.5, 1.5, 1.0, 0.573, _N, "activity term factor"),
+    ParameterSpec("k_n", "k⁻", "A/m2 (m3/mol)^1.5", 7.5e-5, 7.5e-3, 7.5e-4, 7.5e-5, _L, "negative rate constant"),
+    ParameterSpec("k_p", "k⁺", "A/m2 (m3/mol)^1.5", 2.3e-4, 2.3e-2, 2.3e-3, 2.3e-4, _L, "positive rate constant"),
+    ParameterSpec("R_f_n", "R_f⁻", "Ohm m2", 1.0e-5, 1.0e-3, 5.0e-4, 8.719e-5, _N, "negative film resistance"),
+    ParameterSpec("R_f_p", "R_f⁺", "Ohm m2", 1.0e-4, 1.0e-3, 1.0e-3, 4.619e-4, _N, "positive film resistance"),
+    ParameterSpec("c_e0", "c_e(x,0)", "mol/m3", 500.0, 1500.0, 1000.0, 1500.0, _N, "initial electrolyte concentration"),
+)
+
+#: Name → spec.
+SPECS: dict[str, ParameterSpec] = {p.name: p for p in DYNAMIC}
+NAMES: tuple[str, ...] = tuple(SPECS)
+
+#: Table 4 / 11 equilibrium parameters (identified from the OCV test, not normalised).
+EQUILIBRIUM_TRUTH: dict[str, float] = {"eps_s_n": 0.5438895, "eps_s_p": 0.6663649, "n_Li": 0.1406}
+
+
+def spec(name: str) -> ParameterSpec:
+    """The spec of a dynamic parameter; an unknown name is an :class:`InputError` listing the known ones."""
+    try:
+        return SPECS[name]
+    except KeyError:
+        raise InputError(f"unknown parameter {name!r}; expected one of {', '.join(NAMES)}") from None
+
+
+def check_names(names: list[str] | tuple[str, ...]) -> tuple[str, ...]:
+    """Validate a list of dynamic parameter names (no duplicates)."""
+    out = tuple(names)
+    for n in out:
+        spec(n)
+    dup = {n for n in out if out.count(n) > 1}
+    if dup:
+        raise InputError(f"parameter(s) {sorted(dup)} given more than once")
+    return out
