@@ -60,6 +60,7 @@ def simulate(
     settings: solver.Settings | None = None,
     T0: float | None = None,
     v_limits: tuple[float, float] | None = None,
+    backend: str = "auto",
 ) -> Result:
     """Simulate ``cell`` under ``profile`` from rest at ``soc0`` (default: the profile's own ``soc0``).
 
@@ -67,6 +68,9 @@ def simulate(
     parameters (any subset of the 18, in the order wanted). The run stops cleanly at the cell's voltage limits
     (or ``v_limits``), at its maximum surface temperature, or when a particle surface empties or fills:
     ``ended_by`` says why; the arrays then end at the last sample within limits.
+
+    backend: "native" (the compiled stepper; needs a C compiler), "casadi" (the same scheme inside CasADi,
+    about 15× slower), or "auto" (native when a compiler is available).
     """
     if not isinstance(profile, Profile):
         raise InputError(f"expected a protocols.Profile, got {type(profile).__name__}")
@@ -80,21 +84,27 @@ def simulate(
     if not 150.0 < ambient < 400.0:
         raise InputError(f"ambient temperature must be in K (150–400), got {ambient}")
     names = parameters.check_names(list(sensitivities))
+    if backend not in ("auto", "native", "casadi"):
+        raise InputError(f"backend must be 'auto', 'native' or 'casadi', got {backend!r}")
     mesh = mesh or Mesh()
     settings = settings or solver.Settings()
     ns = len(names)
-    comp = solver.compile_model(cell, mesh, isothermal, ns, settings.chunk)
     theta_bar = np.array([cell.normalised(n) for n in parameters.NAMES])
-    E = np.zeros((len(parameters.NAMES), ns))
-    for j, n in enumerate(names):
-        E[parameters.NAMES.index(n), j] = 1.0
+    sel = [parameters.NAMES.index(n) for n in names]
     vmin, vmax = v_limits or (float(cell["V_min"]), float(cell["V_max"]))
     limits = {"V_min": vmin, "V_max": vmax, "T_max": float(cell["T_max"])}
     t = profile.t - profile.t[0]
-    traj = solver.run(
-        comp, t, to_model_current(profile.current), float(ambient), theta_bar, soc0,
-        float(ambient if T0 is None else T0), E if ns else None, settings, limits,
-    )
+    args = (t, to_model_current(profile.current), float(ambient), theta_bar, soc0, float(ambient if T0 is None else T0))
+    stepper = _native(cell, mesh, isothermal) if backend in ("native", "auto") else None
+    if stepper is not None:
+        build = stepper.generate_seconds + stepper.compile_seconds
+        traj = solver.run_native(stepper, *args, sel, settings, limits)
+    else:
+        comp = solver.compile_model(cell, mesh, isothermal, ns, settings.chunk)
+        build = comp.build_seconds
+        E = np.zeros((len(parameters.NAMES), ns))
+        E[sel, np.arange(ns)] = 1.0
+        traj = solver.run(comp, *args, E if ns else None, settings, limits)
     n = traj.n_samples
     return Result(
         t=profile.t[:n].copy(),
@@ -106,5 +116,18 @@ def simulate(
         sensitivities=traj.dV,
         sensitivities_T=traj.dT2,
         ended_by=traj.ended_by,
-        stats={"build_seconds": comp.build_seconds, "solve_seconds": traj.seconds, "steps": traj.n_steps},
+        stats={"build_seconds": build, "solve_seconds": traj.seconds, "steps": traj.n_steps},
     )
+
+
+def _native(cell: Cell, mesh: Mesh, isothermal: bool):  # -> NativeStepper | None
+    """The compiled stepper, or None when no C compiler can build it (then the CasADi stepper runs)."""
+    from battlab.model.native import NativeUnavailable
+
+    try:
+        return solver.native_stepper(cell, mesh, isothermal)
+    except NativeUnavailable as exc:
+        import warnings
+
+        warnings.warn(f"compiled stepper unavailable ({exc}); using the CasADi stepper", stacklevel=3)
+        return None

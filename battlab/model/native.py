@@ -1,0 +1,251 @@
+"""The compiled time stepper: CasADi generates C for the step residual and its Jacobians, ``stepper.c`` runs
+Newton, a static-pivot sparse LU and the sensitivity solves, and gcc turns both into one shared library.
+
+Build once per (cell, mesh, thermal option), cached on disk under ``$BATTLAB_CACHE`` (default
+``~/.cache/battlab``) by a hash of the generated source, so a fit that changes θ̄ never recompiles (θ̄ is an input).
+
+The LU program: the pivot order comes from SuperLU (COLAMD columns, partial pivoting) on the Jacobian at a
+representative state; the fill pattern of that order is computed symbolically, and the numeric factorisation
+replays it (as KLU's refactorisation does). A pivot that vanishes later is reported, and the caller re-analyses.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import splu
+
+from battlab.model.dfn import DFN
+
+_INT = ctypes.c_int
+_PI = ctypes.POINTER(ctypes.c_int)
+_PD = ctypes.POINTER(ctypes.c_double)
+
+
+class NativeUnavailable(RuntimeError):
+    """No C compiler, or the build failed: the caller falls back to the CasADi stepper."""
+
+
+class _Problem(ctypes.Structure):
+    _fields_ = [
+        ("n", _INT), ("nx", _INT), ("nth", _INT), ("nslot", _INT),
+        ("prow", _PI), ("pcol", _PI), ("jac2slot", _PI), ("piv", _PI),
+        ("lptr", _PI), ("lrow", _PI), ("lslot", _PI), ("uptr", _PI), ("uslot", _PI), ("upd", _PI),
+        ("ucptr", _PI), ("ucrow", _PI), ("ucslot", _PI),
+        ("jth_colptr", _PI), ("jth_row", _PI), ("jac_nnz", _INT), ("jth_nnz", _INT), ("iT2", _INT),
+    ]
+
+
+def cache_dir() -> Path:
+    d = Path(os.environ.get("BATTLAB_CACHE", Path.home() / ".cache" / "battlab"))
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def _functions(model: DFN) -> tuple[list[ca.Function], ca.Sparsity, ca.Sparsity]:
+    lay = model.layout
+    nx, ny = lay.nx, lay.ny
+    y = ca.SX.sym("y", ny)
+    xn = ca.SX.sym("xn", nx)
+    xp = ca.SX.sym("xp", nx)
+    u = ca.SX.sym("u", 4)
+    th = ca.SX.sym("th", 18)
+    h, w = u[0], u[1]
+    eq = model.equations(y, u[2], u[3], th)
+    gamma = (1 + w) / (1 + 2 * w)
+    psi = (1 + w) ** 2 / (1 + 2 * w) * xn - w**2 / (1 + 2 * w) * xp
+    R = ca.vertcat(y[:nx] - psi - gamma * h * eq["f"], eq["g"])
+    Jy = ca.jacobian(R, y)
+    Jth = ca.jacobian(R, th)
+    sto = eq["sto_surf"]
+    o = ca.vertcat(eq["V"], eq["T1"], eq["T2"], ca.mmin(sto), ca.mmax(sto))
+    fs = [
+        ca.Function("bl_res", [y, xn, xp, u, th], [R]),
+        ca.Function("bl_jac", [y, xn, xp, u, th], [Jy]),
+        ca.Function("bl_jth", [y, xn, xp, u, th], [Jth]),
+        ca.Function("bl_out", [y, u, th], [o]),
+        ca.Function("bl_outj", [y, u, th], [ca.densify(ca.jacobian(eq["V"], y)), ca.densify(ca.jacobian(eq["V"], th))]),
+    ]
+    return fs, Jy.sparsity(), Jth.sparsity()
+
+
+@dataclass
+class LUProgram:
+    """Index arrays of the static-pivot LU (see ``stepper.c``)."""
+
+    arrays: dict[str, np.ndarray]
+    nslot: int
+
+
+def analyse(jac_sparsity: ca.Sparsity, values: np.ndarray) -> LUProgram:
+    """Pivot order from SuperLU on a numeric Jacobian, then the symbolic fill and the replay program."""
+    n = jac_sparsity.size1()
+    colind = np.array(jac_sparsity.colind())
+    row = np.array(jac_sparsity.row())
+    A = sp.csc_matrix((values, row, colind), shape=(n, n))
+    lu = splu(A, permc_spec="COLAMD", diag_pivot_thresh=1.0, options={"SymmetricMode": False})
+    # scipy: Pr A Pc = L U with (Pr A)[perm_r[i]] = A[i] and (A Pc)[:, perm_c[j]] = A[:, j]
+    inv_prow = np.asarray(lu.perm_r)  # original row -> position
+    inv_pcol = np.asarray(lu.perm_c)  # original column -> position
+    prow = np.argsort(inv_prow)  # position -> original row
+    pcol = np.argsort(inv_pcol)  # position -> original column
+    # permuted pattern as row sets and column sets
+    rows: list[set[int]] = [set() for _ in range(n)]
+    cols: list[set[int]] = [set() for _ in range(n)]
+    for j in range(n):
+        for k in range(colind[j], colind[j + 1]):
+            i2, j2 = int(inv_prow[row[k]]), int(inv_pcol[j])
+            rows[i2].add(j2)
+            cols[j2].add(i2)
+    for k in range(n):
+        rows[k].add(k)
+        cols[k].add(k)
+    # symbolic elimination (no pivoting): fill
+    for k in range(n):
+        below = [i for i in cols[k] if i > k]
+        right = [j for j in rows[k] if j > k]
+        for i in below:
+            ri = rows[i]
+            for j in right:
+                if j not in ri:
+                    ri.add(j)
+                    cols[j].add(i)
+    slot: dict[tuple[int, int], int] = {}
+    for i in range(n):
+        for j in sorted(rows[i]):
+            slot[(i, j)] = len(slot)
+    jac2slot = np.array([slot[(int(inv_prow[row[k]]), int(inv_pcol[j]))]
+                         for j in range(n) for k in range(colind[j], colind[j + 1])], dtype=np.int32)
+    piv = np.array([slot[(k, k)] for k in range(n)], dtype=np.int32)
+    lptr, lrow, lslot, uptr, uslot, upd = [0], [], [], [0], [], []
+    ucptr, ucrow, ucslot = [0], [], []
+    for k in range(n):
+        below = sorted(i for i in cols[k] if i > k)
+        right = sorted(j for j in rows[k] if j > k)
+        lrow += below
+        lslot += [slot[(i, k)] for i in below]
+        lptr.append(len(lrow))
+        uslot += [slot[(k, j)] for j in right]
+        uptr.append(len(uslot))
+        upd += [slot[(i, j)] for i in below for j in right]
+        above = sorted(i for i in cols[k] if i < k)
+        ucrow += above
+        ucslot += [slot[(i, k)] for i in above]
+        ucptr.append(len(ucrow))
+    arr = {name: np.ascontiguousarray(v, dtype=np.int32) for name, v in {
+        "prow": prow, "pcol": pcol, "jac2slot": jac2slot, "piv": piv, "lptr": lptr, "lrow": lrow,
+        "lslot": lslot, "uptr": uptr, "uslot": uslot, "upd": upd, "ucptr": ucptr, "ucrow": ucrow,
+        "ucslot": ucslot}.items()}
+    return LUProgram(arr, len(slot))
+
+
+class NativeStepper:
+    """A compiled model: ``run`` advances a schedule of steps and writes the samples' outputs."""
+
+    def __init__(self, model: DFN) -> None:
+        t0 = time.perf_counter()
+        self.model = model
+        fs, self.jac_sp, self.jth_sp = _functions(model)
+        self._f = {f.name(): f for f in fs}
+        cg = ca.CodeGenerator("bl_model.c", {"with_header": False, "casadi_int": "long long int"})
+        for f in fs:
+            cg.add(f)
+        src = cg.dump() + "\n" + resources.files("battlab.model").joinpath("stepper.c").read_text()
+        debug = "debug" if os.environ.get("BATTLAB_DEBUG_STEPPER") else ""
+        digest = hashlib.sha256((src + debug).encode()).hexdigest()[:20]
+        lib_path = cache_dir() / f"bl_{digest}.so"
+        self.generate_seconds = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        if not lib_path.is_file():
+            _compile(src, lib_path)
+        self.compile_seconds = time.perf_counter() - t1
+        self.lib = ctypes.CDLL(str(lib_path))
+        self.lib.bl_run.restype = _INT
+        self._program: LUProgram | None = None
+        self._keep: list[np.ndarray] = []
+        self._problem: _Problem | None = None
+
+    # --- LU analysis ---
+    def analyse_at(self, y: np.ndarray, xn: np.ndarray, xp: np.ndarray, u: np.ndarray, th: np.ndarray) -> None:
+        """(Re)compute the pivot order at a state (when the current one meets a vanishing pivot)."""
+        vals = np.array(self._f["bl_jac"](y, xn, xp, u, th).nonzeros())
+        self._program = analyse(self.jac_sp, vals)
+        self._problem = self._build_problem()
+
+    def _build_problem(self) -> _Problem:
+        lay = self.model.layout
+        a = self._program.arrays
+        jth_colptr = np.ascontiguousarray(self.jth_sp.colind(), dtype=np.int32)
+        jth_row = np.ascontiguousarray(self.jth_sp.row(), dtype=np.int32)
+        self._keep = [*a.values(), jth_colptr, jth_row]
+
+        def p(x: np.ndarray) -> ctypes._Pointer:
+            return x.ctypes.data_as(_PI)
+
+        return _Problem(
+            lay.ny, lay.nx, 18, self._program.nslot,
+            p(a["prow"]), p(a["pcol"]), p(a["jac2slot"]), p(a["piv"]), p(a["lptr"]), p(a["lrow"]),
+            p(a["lslot"]), p(a["uptr"]), p(a["uslot"]), p(a["upd"]), p(a["ucptr"]), p(a["ucrow"]),
+            p(a["ucslot"]), p(jth_colptr), p(jth_row), self.jac_sp.nnz(), self.jth_sp.nnz(),
+            lay.slices()["T2"].start,
+        )
+
+    @property
+    def analysed(self) -> bool:
+        return self._problem is not None
+
+    def run(
+        self, h: np.ndarray, w: np.ndarray, current: np.ndarray, T_amb: np.ndarray, out_idx: np.ndarray,
+        out_I: np.ndarray, th: np.ndarray, sel: np.ndarray, y: np.ndarray, xp: np.ndarray, S: np.ndarray,
+        Sp: np.ndarray, out: np.ndarray, outdV: np.ndarray, outdT2: np.ndarray, limits: np.ndarray,
+        tol: float = 1e-9, maxit: int = 20,
+    ) -> tuple[int, int, int]:
+        """Advance in place; returns (steps done, code, Newton iterations); code 0 done, 1 a sample broke a
+        limit, -1 Newton failed, -2 singular matrix."""
+        lay = self.model.layout
+        ns = len(sel)
+        d = lambda x: np.ascontiguousarray(x, dtype=np.float64)  # noqa: E731
+        i = lambda x: np.ascontiguousarray(x, dtype=np.int32)  # noqa: E731
+        h, w, current, T_amb, out_I, th = map(d, (h, w, current, T_amb, out_I, th))
+        out_idx, sel = i(out_idx), i(sel)
+        limits = d(limits)
+        Sy = np.zeros(lay.ny * max(ns, 1))
+        code = _INT(0)
+        iters = _INT(0)
+        pd = lambda x: x.ctypes.data_as(_PD)  # noqa: E731
+        done = self.lib.bl_run(
+            ctypes.byref(self._problem), _INT(len(h)), pd(h), pd(w), pd(current), pd(T_amb),
+            out_idx.ctypes.data_as(_PI), pd(out_I), pd(th), sel.ctypes.data_as(_PI), _INT(ns),
+            ctypes.c_double(tol), _INT(maxit), pd(limits), pd(y), pd(xp), pd(S), pd(Sp), pd(Sy), pd(out), pd(outdV),
+            pd(outdT2), ctypes.byref(code), ctypes.byref(iters),
+        )
+        return int(done), int(code.value), int(iters.value)
+
+
+def _compile(src: str, lib_path: Path) -> None:
+    cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
+    if cc is None:
+        raise NativeUnavailable("no C compiler found (set CC)")
+    with tempfile.TemporaryDirectory() as tmp:
+        c_file = Path(tmp) / "bl_model.c"
+        c_file.write_text(src)
+        so = Path(tmp) / lib_path.name
+        cmd = [cc, "-O2", "-fPIC", "-shared", "-o", str(so), str(c_file), "-lm"]
+        if os.environ.get("BATTLAB_DEBUG_STEPPER"):
+            cmd.insert(1, "-DBL_DEBUG")
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise NativeUnavailable(f"C build failed: {proc.stderr.strip().splitlines()[-1:]}")
+        shutil.move(str(so), lib_path)

@@ -1,0 +1,253 @@
+/* battlab time stepper: variable-step BDF2 with Newton, static-pivot sparse LU and exact forward
+ * sensitivities (staggered direct method). Appended to CasADi-generated code that defines
+ *   bl_res(y, xn, xp, u, th) -> R          residual of one step (rows: x - psi - gamma h f; g)
+ *   bl_jac(y, xn, xp, u, th) -> dR/dy      sparse, CCS nonzeros
+ *   bl_jth(y, xn, xp, u, th) -> dR/dth     sparse, CCS nonzeros
+ *   bl_out(y, u, th)          -> [V, T1, T2, sto_min, sto_max]
+ *   bl_outj(y, u, th)         -> dV/dy (dense), dV/dth (dense)
+ * u = [h, omega, I_dis, T_amb]. Everything below is generic in the model. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef struct {
+  int n, nx, nth;
+  /* LU program on the permuted, filled pattern */
+  int nslot;
+  const int *prow, *pcol;       /* position -> original row / column */
+  const int *jac2slot;          /* Jacobian nonzero -> slot */
+  const int *piv;               /* [n] slot of the pivot of column k */
+  const int *lptr, *lrow, *lslot; /* column k of L below the diagonal: rows and slots */
+  const int *uptr, *uslot;      /* row k of U right of the diagonal: slots (factorisation order) */
+  const int *upd;               /* update targets, nested L x U loop order */
+  const int *ucptr, *ucrow, *ucslot; /* column k of U above the diagonal (back substitution) */
+  /* Jacobian wrt theta (CCS) */
+  const int *jth_colptr, *jth_row;
+  int jac_nnz, jth_nnz;
+  int iT2;                      /* index of T2 in y */
+} Problem;
+
+/* CasADi work vectors, sized for the largest function (arg/res may be used beyond the inputs/outputs) */
+static const casadi_real *g_arg[256];
+static casadi_real *g_res[256];
+static casadi_int *g_iw = 0;
+static double *g_w = 0;
+
+static int ensure_work(void) {
+  casadi_int a, r, i, w, ma = 0, mr = 0, mi = 0, mw = 0;
+  int (*works[5])(casadi_int *, casadi_int *, casadi_int *, casadi_int *) = {
+      bl_res_work, bl_jac_work, bl_jth_work, bl_out_work, bl_outj_work};
+  for (int k = 0; k < 5; ++k) {
+    works[k](&a, &r, &i, &w);
+    if (a > ma) ma = a;
+    if (r > mr) mr = r;
+    if (i > mi) mi = i;
+    if (w > mw) mw = w;
+  }
+  if (ma > 256 || mr > 256) return -1;
+  free(g_iw);
+  free(g_w);
+  g_iw = (casadi_int *)malloc(sizeof(casadi_int) * (size_t)(mi + 1));
+  g_w = (double *)malloc(sizeof(double) * (size_t)(mw + 1));
+  return 0;
+}
+
+static void call5(int (*f)(const casadi_real **, casadi_real **, casadi_int *, casadi_real *, int),
+                  const double *a0, const double *a1, const double *a2, const double *a3, const double *a4,
+                  double *r0, double *r1) {
+  g_arg[0] = a0; g_arg[1] = a1; g_arg[2] = a2; g_arg[3] = a3; g_arg[4] = a4;
+  g_res[0] = r0; g_res[1] = r1;
+  f(g_arg, g_res, g_iw, g_w, 0);
+}
+
+/* numeric LU on the fixed program; returns 0 or -1 on a tiny pivot */
+static int lu_factor(const Problem *P, const double *jnz, double *a) {
+  int k, l, u, o = 0;
+  memset(a, 0, sizeof(double) * P->nslot);
+  for (k = 0; k < P->jac_nnz; ++k) a[P->jac2slot[k]] = jnz[k];
+  for (k = 0; k < P->n; ++k) {
+    double p = a[P->piv[k]];
+    if (!(fabs(p) > 1e-300) || !isfinite(p)) return -1;
+    for (l = P->lptr[k]; l < P->lptr[k + 1]; ++l) a[P->lslot[l]] /= p;
+    for (l = P->lptr[k]; l < P->lptr[k + 1]; ++l) {
+      double lik = a[P->lslot[l]];
+      for (u = P->uptr[k]; u < P->uptr[k + 1]; ++u) a[P->upd[o++]] -= lik * a[P->uslot[u]];
+    }
+  }
+  return 0;
+}
+
+/* solve J x = b in place (b in original row order, x in original column order); c: work [n] */
+static void lu_solve(const Problem *P, const double *a, double *b, double *c) {
+  int k, l, n = P->n;
+  for (k = 0; k < n; ++k) c[k] = b[P->prow[k]];
+  for (k = 0; k < n; ++k) {
+    double ck = c[k];
+    if (ck != 0.0)
+      for (l = P->lptr[k]; l < P->lptr[k + 1]; ++l) c[P->lrow[l]] -= a[P->lslot[l]] * ck;
+  }
+  for (k = n - 1; k >= 0; --k) {
+    double ck = c[k] / a[P->piv[k]];
+    c[k] = ck;
+    if (ck != 0.0)
+      for (l = P->ucptr[k]; l < P->ucptr[k + 1]; ++l) c[P->ucrow[l]] -= a[P->ucslot[l]] * ck;
+  }
+  for (k = 0; k < n; ++k) b[P->pcol[k]] = c[k];
+}
+
+static double norm_inf(const double *v, int n) {
+  double m = 0.0;
+  int i;
+  for (i = 0; i < n; ++i) {
+    double x = fabs(v[i]);
+    if (!(x <= m)) m = x; /* NaN propagates */
+  }
+  return m;
+}
+
+/* Newton for one step from the guess in ynew. lu/fresh: the chord matrix and whether it is current.
+ * Returns iterations (>= 0) or -1 (no convergence), -2 (singular). */
+static int newton(const Problem *P, double *ynew, const double *xn, const double *xp, const double *u,
+                  const double *th, double *lu, int *have_lu, double *R, double *jnz, double *c,
+                  double tol, int maxit) {
+  int it, njac = 0;
+  double prev = INFINITY, dy = INFINITY;
+  for (it = 0; it < maxit; ++it) {
+    double r, ymax;
+    call5(bl_res, ynew, xn, xp, u, th, R, 0);
+    r = norm_inf(R, P->n);
+#ifdef BL_DEBUG
+    fprintf(stderr, "newton it %d r %.3e dy %.3e h %g have_lu %d njac %d\n", it, r, dy, u[0], *have_lu, njac);
+#endif
+    if (!isfinite(r)) return -1;
+    if (r < 1e-13) return it;
+    /* converged: a small residual and a last update near round-off (so that the solution, not only the
+       residual, is exact enough for sensitivities to match finite differences), or the round-off floor */
+    ymax = norm_inf(ynew, P->n);
+    if (r < tol && (dy < 1e-11 * (1.0 + ymax) || r > 0.5 * prev)) return it;
+    /* chord iterations on the last factorisation while they contract fast, else a fresh Jacobian */
+    if (!*have_lu || (it > 0 && r > 0.03 * prev)) {
+      if (njac >= 6) return -1;
+      call5(bl_jac, ynew, xn, xp, u, th, jnz, 0);
+      if (lu_factor(P, jnz, lu)) { *have_lu = 0; return -2; }
+      *have_lu = 1;
+      ++njac;
+    }
+    prev = r;
+    lu_solve(P, lu, R, c);
+    dy = norm_inf(R, P->n);
+    for (int i = 0; i < P->n; ++i) ynew[i] -= R[i];
+  }
+  return -1;
+}
+
+/* sensitivities of a converged step: J S = -(alpha SN + beta SP on x rows + dR/dth[:, sel]) */
+static int sens(const Problem *P, const double *y, const double *xn, const double *xp, const double *u,
+                const double *th, const int *sel, int ns, const double *SN, const double *SP, double *Sy,
+                double *lu, double *jnz, double *jth, double *c) {
+  int n = P->n, nx = P->nx, j, i;
+  double w = u[1];
+  double alpha = -(1 + w) * (1 + w) / (1 + 2 * w), beta = w * w / (1 + 2 * w);
+  call5(bl_jac, y, xn, xp, u, th, jnz, 0);
+  if (lu_factor(P, jnz, lu)) return -2;
+  call5(bl_jth, y, xn, xp, u, th, jth, 0);
+  for (j = 0; j < ns; ++j) {
+    double *b = Sy + (size_t)j * n;
+    int col = sel[j];
+    memset(b, 0, sizeof(double) * n);
+    for (i = 0; i < nx; ++i) b[i] = alpha * SN[(size_t)j * nx + i] + beta * SP[(size_t)j * nx + i];
+    for (i = P->jth_colptr[col]; i < P->jth_colptr[col + 1]; ++i) b[P->jth_row[i]] += jth[i];
+    lu_solve(P, lu, b, c);
+    for (i = 0; i < n; ++i) b[i] = -b[i];
+  }
+  return 0;
+}
+
+/* outputs at a sample: o[5], dV[ns], dT2[ns] */
+static void output(const Problem *P, const double *y, const double *u, const double *th, const int *sel, int ns,
+                   const double *Sy, double *o, double *dV, double *dT2, double *vy, double *vth) {
+  g_arg[0] = y; g_arg[1] = u; g_arg[2] = th;
+  g_res[0] = o; g_res[1] = 0;
+  bl_out(g_arg, g_res, g_iw, g_w, 0);
+  if (ns) {
+    g_arg[0] = y; g_arg[1] = u; g_arg[2] = th;
+    g_res[0] = vy; g_res[1] = vth;
+    bl_outj(g_arg, g_res, g_iw, g_w, 0);
+    for (int j = 0; j < ns; ++j) {
+      const double *s = Sy + (size_t)j * P->n;
+      double acc = vth[sel[j]];
+      for (int i = 0; i < P->n; ++i) acc += vy[i] * s[i];
+      dV[j] = acc;
+      dT2[j] = s[P->iT2];
+    }
+  }
+}
+
+/* Run steps [0, nsteps). State in/out: y[n], xp[nx], S[nx*ns], Sp[nx*ns] (column-major per parameter),
+ * Sy[n*ns] work/out. sched: h, w, I per step; out_idx[k] >= 0: write sample out_idx[k] after step k with the
+ * right-limit current out_I[k]. Returns nsteps on success, else the index of the failed step (and *code:
+ * -1 Newton, -2 singular), or the number of steps done when a sample broke a limit (*code = 1). */
+int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const double *I, const double *Tamb,
+           const int *out_idx, const double *out_I, const double *th, const int *sel, int ns, double tol,
+           int maxit, const double *limits, double *y, double *xp, double *S, double *Sp, double *Sy, double *out, double *outdV,
+           double *outdT2, int *code, int *iters) {
+  int n = P->n, nx = P->nx, k, have_lu = 0, have_lu0 = 0;
+  size_t nsx = (size_t)nx * (ns > 0 ? ns : 1);
+  double *ynew = malloc(sizeof(double) * n), *R = malloc(sizeof(double) * n), *c = malloc(sizeof(double) * n);
+  double *xn = malloc(sizeof(double) * nx), *jnz = malloc(sizeof(double) * (P->jac_nnz + 1));
+  double *jth = malloc(sizeof(double) * (P->jth_nnz + 1));
+  double *lu = malloc(sizeof(double) * P->nslot), *lu0 = malloc(sizeof(double) * P->nslot);
+  double *y0 = malloc(sizeof(double) * n);
+  double *Sy0 = malloc(sizeof(double) * (size_t)n * (ns > 0 ? ns : 1));
+  double *vy = malloc(sizeof(double) * n), *vth = malloc(sizeof(double) * (P->nth + 1));
+  int ret = nsteps;
+  if (ensure_work()) { *code = -3; return 0; }
+  *code = 0;
+  *iters = 0;
+  for (k = 0; k < nsteps; ++k) {
+    double u[4] = {h[k], w[k], I[k], Tamb[k]};
+    int it;
+    memcpy(xn, y, sizeof(double) * nx);
+    memcpy(ynew, y, sizeof(double) * n);
+    it = newton(P, ynew, xn, xp, u, th, lu, &have_lu, R, jnz, c, tol, maxit);
+    if (it < 0) { *code = it; ret = k; break; }
+    *iters += it;
+    if (ns) {
+      int s = sens(P, ynew, xn, xp, u, th, sel, ns, S, Sp, Sy, lu, jnz, jth, c);
+      if (s) { *code = s; ret = k; break; }
+      have_lu = 1; /* the exact Jacobian at the solution is the next chord matrix */
+      if (h[k] > 0) memcpy(Sp, S, sizeof(double) * nsx);
+      for (int j = 0; j < ns; ++j) memcpy(S + (size_t)j * nx, Sy + (size_t)j * n, sizeof(double) * nx);
+    }
+    if (h[k] > 0) memcpy(xp, xn, sizeof(double) * nx);
+    memcpy(y, ynew, sizeof(double) * n);
+    if (out_idx[k] >= 0) {
+      int m = out_idx[k];
+      double *o = out + (size_t)5 * m;
+      if (out_I[k] == I[k]) {
+        output(P, y, u, th, sel, ns, Sy, o, outdV + (size_t)m * ns, outdT2 + (size_t)m * ns, vy, vth);
+      } else {
+        /* right limit: algebraic re-solve with the new current (a zero-length step) */
+        double u0[4] = {0.0, 0.0, out_I[k], Tamb[k]};
+        memcpy(y0, y, sizeof(double) * n);
+        it = newton(P, y0, y, xp, u0, th, lu0, &have_lu0, R, jnz, c, tol, maxit);
+        if (it < 0) { *code = it; ret = k; break; }
+        if (ns) {
+          if (sens(P, y0, y, xp, u0, th, sel, ns, S, Sp, Sy0, lu0, jnz, jth, c)) { *code = -2; ret = k; break; }
+          have_lu0 = 1;
+        }
+        output(P, y0, u0, th, sel, ns, Sy0, o, outdV + (size_t)m * ns, outdT2 + (size_t)m * ns, vy, vth);
+      }
+      /* limits [V_min, V_max, T_max]: stop at the first sample beyond them (or with an empty/full surface) */
+      if (!(o[0] >= limits[0] && o[0] <= limits[1] && o[2] <= limits[2] && o[3] > 0.0 && o[4] < 1.0)) {
+        *code = 1;
+        ret = k + 1;
+        break;
+      }
+    }
+  }
+  free(ynew); free(R); free(c); free(xn); free(jnz); free(jth); free(lu); free(lu0); free(y0);
+  free(Sy0); free(vy); free(vth);
+  return ret;
+}
