@@ -172,7 +172,11 @@ def as_function(value: Any, variables: tuple[str, ...] = ("x",)) -> Function | f
 def evaluate(f: Function | float, x: Any, backend: str = "numpy") -> Any:
     """Evaluate a parameter that may be a constant, an expression or a table."""
     if isinstance(f, float | int):
-        return f + 0 * x if backend == "numpy" else float(f)
+        if backend == "numpy":
+            return f + 0 * x
+        import casadi as ca
+
+        return float(f) * ca.DM.ones(x.shape) if hasattr(x, "shape") else float(f)  # same shape as x
     return f(x, backend=backend)
 
 

@@ -239,9 +239,11 @@ class DFN:
             U = cell.fn(f"U_{e}", surf[e], backend="casadi")
             eta = y[sl[f"phis_{e}"]] - phie[off[e] : off[e] + nreg[e]] - U - p[f"R_f_{e}"] * i_int[e]
             g_bv[e] = (i_int[e] - 2.0 * i0 * ca.sinh(F * eta / (2.0 * R_GAS * T1))) / self.i_ref
+            # B3-B4: the potentials at the electrode's mean bulk stoichiometry (one evaluation per electrode)
             sign = 1.0 if e == "p" else -1.0
-            U_bulk = U_bulk + sign * ca.sum1(cell.fn(f"U_{e}", bulk[e], backend="casadi")) / nreg[e]
-            dUdT_bulk = dUdT_bulk + sign * ca.sum1(cell.fn(f"dUdT_{e}", bulk[e], backend="casadi")) / nreg[e]
+            mean_bulk = ca.sum1(bulk[e]) / nreg[e]
+            U_bulk = U_bulk + sign * cell.fn(f"U_{e}", mean_bulk, backend="casadi")
+            dUdT_bulk = dUdT_bulk + sign * cell.fn(f"dUdT_{e}", mean_bulk, backend="casadi")
 
         V = phis_bc["p"] - float(cell["R_c"]) * I_dis
 
