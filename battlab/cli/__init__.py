@@ -31,6 +31,7 @@ def main() -> None:
 
 
 def _register() -> None:
+    # each command module registers here (one import line each)
     from battlab.cli.export import export
     from battlab.cli.library import library
     from battlab.cli.simulate import simulate
