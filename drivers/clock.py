@@ -45,32 +45,38 @@ class RealClock:
 class TrackedClock:
     """The host's estimate of a remote clock that runs at ``speed`` × real time.
 
-    ``reference()`` asks the instrument for its time (one round trip); the estimate is anchored at the
-    midpoint of that round trip and extrapolated with ``time.monotonic``; :meth:`sync` re-anchors it.
+    ``reference()`` asks the instrument for its time (one round trip). :meth:`sync` keeps the round trip
+    with the shortest duration out of ``samples`` and anchors the estimate at its midpoint (the error is at
+    most half that round trip × speed); the estimate is then extrapolated with ``time.monotonic``. The
+    virtual instrument's clock is itself a function of the same monotonic clock, so the estimate does not
+    drift; call :meth:`sync` again after a long pause if in doubt.
     """
 
-    def __init__(self, reference: Callable[[], float], speed: float) -> None:
+    def __init__(self, reference: Callable[[], float], speed: float, *, samples: int = 5) -> None:
         if not speed > 0:
             raise ValueError(f"speed must be > 0, got {speed}")
         self._reference = reference
         self.speed = float(speed)
+        self.samples = max(1, samples)
         self._lock = threading.Lock()
         self._t_ref = 0.0
         self._t_mono = time.monotonic()
+        self.uncertainty_s = float("inf")
         self.sync()
 
     def sync(self) -> None:
-        """Re-anchor on the instrument's clock."""
-        t0 = time.monotonic()
-        t_ref = self._reference()
-        t1 = time.monotonic()
+        """Re-anchor on the instrument's clock (best of ``samples`` round trips)."""
+        best: tuple[float, float, float] | None = None
+        for _ in range(self.samples):
+            t0 = time.monotonic()
+            t_ref = self._reference()
+            t1 = time.monotonic()
+            if best is None or t1 - t0 < best[0]:
+                best = (t1 - t0, t_ref, 0.5 * (t0 + t1))
+        assert best is not None
         with self._lock:
-            self._t_ref, self._t_mono = t_ref, 0.5 * (t0 + t1)
-
-    def observe(self, t_ref: float) -> None:
-        """Re-anchor on an instrument time stamp just received (e.g. in a measurement)."""
-        with self._lock:
-            self._t_ref, self._t_mono = t_ref, time.monotonic()
+            self.uncertainty_s = 0.5 * best[0] * self.speed
+            self._t_ref, self._t_mono = best[1], best[2]
 
     def now(self) -> float:
         with self._lock:

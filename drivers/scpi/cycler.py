@@ -88,8 +88,12 @@ class ScpiCycler:
             raise InputError(f"{self.name}: property {name!r} cannot be queried")
         return self._ask(codec.query(prop.header), lambda r: self._parse(prop, r), f"query {name}")
 
-    def set(self, name: str, value: Any) -> None:
-        """Validate ``value`` with the table's validator, convert it, send it, confirm it."""
+    def set(self, name: str, value: Any, *, stamp: bool = False) -> float | None:
+        """Validate ``value`` with the table's validator, convert it, send it, confirm it.
+
+        ``stamp``: also return the instrument's time / s at which the setting took effect (dialects with a
+        ``time`` property, in the same round trip), else None.
+        """
         prop = self.dialect.prop(name)
         if not prop.settable:
             raise InputError(f"{self.name}: property {name!r} is read-only")
@@ -100,13 +104,30 @@ class ScpiCycler:
             except InputError as exc:
                 unit = f" {prop.unit}" if prop.unit else ""
                 raise InputError(f"{self.name}: {name} ({prop.doc}){unit}: {exc}") from None
-        self.send(codec.command(prop.header, self._format(prop, value)), what=f"set {name}")
+        return self.send(
+            codec.command(prop.header, self._format(prop, value)), what=f"set {name}", stamp=stamp
+        )
 
-    def send(self, command: str, *, what: str | None = None) -> None:
-        """Send a command and confirm it through the error queue (inline if the dialect allows)."""
+    def send(self, command: str, *, what: str | None = None, stamp: bool = False) -> float | None:
+        """Send a command and confirm it through the error queue (inline if the dialect allows).
+
+        ``stamp``: see :meth:`set`.
+        """
         what = what or command
         err_q = codec.query(self.dialect.error_query)
-        if self.dialect.check_errors_inline:
+        t_applied: float | None = None
+        if self.dialect.check_errors_inline and stamp and self.dialect.has("time"):
+            time_prop = self.dialect.prop("time")
+
+            def parse_stamped(reply: str) -> tuple[int, str, float]:
+                err, t = codec.split_reply(reply, 2, instrument=self.name, what=what)
+                code, message = codec.parse_error(err, instrument=self.name)
+                return code, message, self._parse(time_prop, t)
+
+            code, message, t_applied = self._ask(
+                codec.compound(command, err_q, codec.query(time_prop.header)), parse_stamped, what
+            )
+        elif self.dialect.check_errors_inline:
             code, message = self._ask(
                 codec.compound(command, err_q), lambda r: codec.parse_error(r, instrument=self.name), what
             )
@@ -125,6 +146,7 @@ class ScpiCycler:
             raise InstrumentFault(
                 self.name, f"{command!r} rejected: {code},{message!r}" + (f"; also {more}" if more else "")
             )
+        return t_applied
 
     def _ask(self, command: str, parse: Any, what: str) -> Any:
         def attempt() -> Any:
@@ -195,7 +217,7 @@ class ScpiCycler:
                 f"{self.name}: current {current_A:g} A is outside the configured limits "
                 f"[-{self._discharge_max_A:g}, {self._charge_max_A:g}] A (positive = charge)"
             )
-        self.set("current", self._to_instrument(current_A))
+        self.last_applied_t_s = self.set("current", self._to_instrument(current_A), stamp=True)
 
     def output(self, on: bool) -> None:
         self.set("output", bool(on))
@@ -217,8 +239,6 @@ class ScpiCycler:
             raise InputError(
                 f"dialect {self.dialect.name}: measure must include voltage and current_measured"
             )
-        if self._clock is not None and got.get("time") is not None:
-            self._clock.observe(got["time"])
         return Measurement(
             voltage_V=got["voltage"],
             current_A=self._from_instrument(got["current_measured"]),
@@ -313,6 +333,8 @@ class ScpiCycler:
 
     # -- time -------------------------------------------------------------------------------------------
     _clock: TrackedClock | None = None
+    #: the instrument's time / s at which the last set_current took effect (dialects with a clock), else None
+    last_applied_t_s: float | None = None
 
     def clock(self) -> Clock:
         """The instrument's clock if it has one (virtual tester), else wall time."""

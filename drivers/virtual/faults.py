@@ -97,10 +97,12 @@ class FaultInjector:
             return fault
 
     def garble_text(self, reply: str) -> str:
-        """Corrupt a text reply so that a strict parser notices: replace 1–3 characters by ``#``."""
+        """Corrupt a text reply so that a strict parser notices: the first character and up to two others
+        become ``#``."""
         with self._lock:
             chars = list(reply) or ["#"]
-            for _ in range(int(self._rng.integers(1, 4))):
+            chars[0] = "#"
+            for _ in range(int(self._rng.integers(0, 3))):
                 chars[int(self._rng.integers(0, len(chars)))] = "#"
             return "".join(chars)
 

@@ -47,7 +47,7 @@ class VirtualLabConfig:
     noise: NoiseModel = field(default_factory=NoiseModel)
     seed: int = 0
     max_step_s: float = 1.0
-    tick_real_s: float = 0.001
+    tick_real_s: float = 0.01
     #: a chamber alarm turns the cycler output off (status bit INH), as a hard-wired interlock would
     interlock: bool = True
     scpi_faults: FaultConfig = field(default_factory=FaultConfig)

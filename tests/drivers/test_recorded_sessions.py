@@ -61,6 +61,8 @@ def virtual_session(adapter: ReplayAdapter) -> None:
     assert cyc.identify().startswith("battlab,")
     cyc.set_voltage_limits(2.5, 4.2)
     cyc.set_temperature_limit(333.15)
+    cyc.set_current(2.7)
+    assert cyc.last_applied_t_s == 120.0  # the instrument's time of the step, from the same round trip
     m = cyc.measure()
     assert m.voltage_V == 3.6012 and m.current_A == 2.70008
     assert m.temperature_K == pytest.approx(298.30) and m.t_s == pytest.approx(123.456789)
