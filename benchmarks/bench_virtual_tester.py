@@ -77,9 +77,7 @@ def serve(speed: float, where: str) -> Iterator[str]:
     """The cycler's URL, served in this process (a thread) or by ``battlab virtual-tester serve``."""
     if where == "thread":
         with VirtualLab(
-            config=VirtualLabConfig(
-                speed=speed, soc0=0.5, modbus_port=None, modbus_rtu_port=None, espec_port=None
-            )
+            config=VirtualLabConfig(speed=speed, soc0=0.5, modbus_port=None, modbus_rtu_port=None, espec_port=None)
         ) as lab:
             yield lab.cycler_url
         return

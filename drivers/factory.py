@@ -36,8 +36,7 @@ def open_chamber(url: str, *, timeout_s: float | None = None, retries: int = 2) 
     if parsed.scheme == "espec":
         return EspecP300.open(parsed, timeout_s=timeout_s, retries=retries)
     raise InputError(
-        f"chamber URL {url!r}: expected modbus-tcp://, modbus-rtu://, modbus-rtu+socket://, "
-        "espec:// or 'virtual'"
+        f"chamber URL {url!r}: expected modbus-tcp://, modbus-rtu://, modbus-rtu+socket://, espec:// or 'virtual'"
     )
 
 

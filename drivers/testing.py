@@ -60,17 +60,12 @@ class _Replay:
             raise AssertionError(f"{self.name}: unexpected extra command {sent!r} (recording exhausted)")
         command, reply = self.pairs[self.position]
         if command != sent:
-            raise AssertionError(
-                f"{self.name}: pair {self.position + 1}: sent {sent!r}, recording expects {command!r}"
-            )
+            raise AssertionError(f"{self.name}: pair {self.position + 1}: sent {sent!r}, recording expects {command!r}")
         if expect_reply and reply is None:
-            raise AssertionError(
-                f"{self.name}: pair {self.position + 1}: {sent!r} expects a reply, recording has none"
-            )
+            raise AssertionError(f"{self.name}: pair {self.position + 1}: {sent!r} expects a reply, recording has none")
         if not expect_reply and reply is not None:
             raise AssertionError(
-                f"{self.name}: pair {self.position + 1}: {sent!r} sent as a write, recording has "
-                f"reply {reply!r}"
+                f"{self.name}: pair {self.position + 1}: {sent!r} sent as a write, recording has reply {reply!r}"
             )
         self.position += 1
         return reply
@@ -78,9 +73,7 @@ class _Replay:
     def assert_all_used(self) -> None:
         if self.position != len(self.pairs):
             unused = self.pairs[self.position :]
-            raise AssertionError(
-                f"{self.name}: {len(unused)} recorded pair(s) never used, first {unused[0]!r}"
-            )
+            raise AssertionError(f"{self.name}: {len(unused)} recorded pair(s) never used, first {unused[0]!r}")
 
     def close(self) -> None:
         pass

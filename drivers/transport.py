@@ -44,9 +44,7 @@ def port_lock(key: str) -> threading.RLock:
 def log_exchange(name: str, sent: object, received: object, elapsed_s: float, note: str = "") -> None:
     """Log one exchange (the one place where instrument I/O is logged)."""
     if log.isEnabledFor(logging.DEBUG):
-        log.debug(
-            "%s > %r < %r (%.3f ms)%s", name, sent, received, elapsed_s * 1e3, f" {note}" if note else ""
-        )
+        log.debug("%s > %r < %r (%.3f ms)%s", name, sent, received, elapsed_s * 1e3, f" {note}" if note else "")
 
 
 class TextAdapter(Protocol):
@@ -110,9 +108,7 @@ class LineAdapter:
             if self._serial is not None:
                 return
             try:
-                self._serial = serial.serial_for_url(
-                    self.port, baudrate=self.baudrate, timeout=self.timeout_s
-                )
+                self._serial = serial.serial_for_url(self.port, baudrate=self.baudrate, timeout=self.timeout_s)
             except (serial.SerialException, OSError, ValueError) as exc:
                 raise CommunicationError(self.name, f"cannot open {self.port}: {exc}") from exc
             self._buffer.clear()
@@ -211,9 +207,7 @@ class LineAdapter:
                 self._buffer += ser.read(65536)
         except (serial.SerialException, OSError) as exc:
             self.close()
-            raise CommunicationError(
-                self.name, f"connection lost waiting for the reply to {command!r}: {exc}"
-            ) from exc
+            raise CommunicationError(self.name, f"connection lost waiting for the reply to {command!r}: {exc}") from exc
         finally:
             if self._serial is not None:
                 self._serial.timeout = self.timeout_s
@@ -259,6 +253,4 @@ def with_retries(
                 except CommunicationError as rexc:
                     last = rexc
     assert last is not None
-    raise type(last)(
-        name, f"{what} failed after {retries + 1} attempts: {last.detail}", reply=last.reply
-    ) from last
+    raise type(last)(name, f"{what} failed after {retries + 1} attempts: {last.detail}", reply=last.reply) from last

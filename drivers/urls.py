@@ -69,9 +69,7 @@ class InstrumentURL:
         try:
             return int(value)
         except ValueError:
-            raise InputError(
-                f"instrument URL {self.raw!r}: option {key}={value!r} is not an integer"
-            ) from None
+            raise InputError(f"instrument URL {self.raw!r}: option {key}={value!r} is not an integer") from None
 
     def float_option(self, key: str, default: float) -> float:
         value = self.options.get(key)
@@ -100,9 +98,7 @@ def parse_url(url: str) -> InstrumentURL:
         return InstrumentURL(raw=url, scheme="virtual")
     path_part, _, query = url.partition("?")
     if _DEVICE_RE.match(path_part):
-        return InstrumentURL(
-            raw=url, scheme="serial", device=path_part, options=_options(url, "serial", query)
-        )
+        return InstrumentURL(raw=url, scheme="serial", device=path_part, options=_options(url, "serial", query))
     if "://" not in url:
         raise _bad(url, "no scheme and not a device path")
     parts = urlsplit(url)

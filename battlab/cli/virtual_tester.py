@@ -71,9 +71,7 @@ def virtual_tester() -> None:
     type=click.IntRange(0, 65535),
     help="Espec P-300 text protocol.",
 )
-@click.option(
-    "--host", default=LOOPBACK, show_default=True, help="Interface to listen on (loopback by default)."
-)
+@click.option("--host", default=LOOPBACK, show_default=True, help="Interface to listen on (loopback by default).")
 @click.option(
     "--speed",
     default=1000.0,

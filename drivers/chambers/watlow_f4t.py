@@ -43,12 +43,9 @@ class WatlowF4T:
         parsed = url if isinstance(url, InstrumentURL) else parse_url(url)
         if parsed.scheme not in ("modbus-tcp", "modbus-rtu", "modbus-rtu+socket"):
             raise InputError(
-                f"chamber URL {parsed.raw!r}: a Watlow F4T needs modbus-tcp://, modbus-rtu:// "
-                "or modbus-rtu+socket://"
+                f"chamber URL {parsed.raw!r}: a Watlow F4T needs modbus-tcp://, modbus-rtu:// or modbus-rtu+socket://"
             )
-        regs = PymodbusRegisters.from_url(
-            parsed, name=name or parsed.raw, timeout_s=timeout_s, retries=retries
-        )
+        regs = PymodbusRegisters.from_url(parsed, name=name or parsed.raw, timeout_s=timeout_s, retries=retries)
         return cls(regs, loop=loop, name=name or f"chamber[{parsed.raw}]")
 
     # -- helpers ------------------------------------------------------------------------------------------
@@ -94,9 +91,7 @@ class WatlowF4T:
     def set_point(self, T_degC: float) -> None:
         lo, hi = self.range_C()
         if not lo <= T_degC <= hi:
-            raise InputError(
-                f"{self.name}: set point {T_degC} degC is outside the loop range [{lo:g}, {hi:g}] degC"
-            )
+            raise InputError(f"{self.name}: set point {T_degC} degC is outside the loop range [{lo:g}, {hi:g}] degC")
         self.registers.write(self._reg(wc.SET_POINT), wc.encode_float(self._from_c(T_degC)))
         if self.registers.read(self._reg(wc.CONTROL_MODE), 1)[0] != wc.MODE_AUTO:
             self.registers.write(self._reg(wc.CONTROL_MODE), [wc.MODE_AUTO])

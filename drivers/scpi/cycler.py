@@ -50,9 +50,7 @@ class ScpiCycler:
         i_lo, i_hi = dialect.prop("current").values
         self._charge_max_A, self._discharge_max_A = self._battlab_current_range(i_lo, i_hi)
         if not dialect.verified:
-            log.warning(
-                "%s: dialect %s is unverified against the instrument's manual", self.name, dialect.name
-            )
+            log.warning("%s: dialect %s is unverified against the instrument's manual", self.name, dialect.name)
 
     @classmethod
     def open(
@@ -104,9 +102,7 @@ class ScpiCycler:
             except InputError as exc:
                 unit = f" {prop.unit}" if prop.unit else ""
                 raise InputError(f"{self.name}: {name} ({prop.doc}){unit}: {exc}") from None
-        return self.send(
-            codec.command(prop.header, self._format(prop, value)), what=f"set {name}", stamp=stamp
-        )
+        return self.send(codec.command(prop.header, self._format(prop, value)), what=f"set {name}", stamp=stamp)
 
     def send(self, command: str, *, what: str | None = None, stamp: bool = False) -> float | None:
         """Send a command and confirm it through the error queue (inline if the dialect allows).
@@ -236,9 +232,7 @@ class ScpiCycler:
             values = [self.get(p.name) for p in props]
         got = dict(zip(self.dialect.measure, values, strict=True))
         if "voltage" not in got or "current_measured" not in got:
-            raise InputError(
-                f"dialect {self.dialect.name}: measure must include voltage and current_measured"
-            )
+            raise InputError(f"dialect {self.dialect.name}: measure must include voltage and current_measured")
         return Measurement(
             voltage_V=got["voltage"],
             current_A=self._from_instrument(got["current_measured"]),
@@ -260,9 +254,7 @@ class ScpiCycler:
 
     def set_current_limits(self, charge_A: float, discharge_A: float) -> None:
         if not (charge_A >= 0 and discharge_A >= 0):
-            raise InputError(
-                f"{self.name}: current limits are magnitudes >= 0, got {charge_A}, {discharge_A}"
-            )
+            raise InputError(f"{self.name}: current limits are magnitudes >= 0, got {charge_A}, {discharge_A}")
         i_lo, i_hi = self.dialect.prop("current").values
         charge_max, discharge_max = self._battlab_current_range(i_lo, i_hi)
         if charge_A > charge_max or discharge_A > discharge_max:
@@ -283,9 +275,7 @@ class ScpiCycler:
 
     def protection(self) -> ProtectionState:
         raw = int(self.get("questionable"))
-        return ProtectionState(
-            tripped=self.dialect.tripped(raw), causes=self.dialect.status_names(raw), raw=raw
-        )
+        return ProtectionState(tripped=self.dialect.tripped(raw), causes=self.dialect.status_names(raw), raw=raw)
 
     def clear_protection(self) -> None:
         # Safety first: the output is programmed off before the latch is cleared, so clearing never
@@ -299,9 +289,7 @@ class ScpiCycler:
         out: list[tuple[int, str]] = []
         err_q = codec.query(self.dialect.error_query)
         for _ in range(_MAX_ERRORS):
-            code, message = self._ask(
-                err_q, lambda r: codec.parse_error(r, instrument=self.name), "SYST:ERR?"
-            )
+            code, message = self._ask(err_q, lambda r: codec.parse_error(r, instrument=self.name), "SYST:ERR?")
             if code == 0:
                 return out
             out.append((code, message))

@@ -227,9 +227,7 @@ def _core_properties(v_max: float, i_max: float, i_sink_max: float) -> tuple[Scp
             validator=strict_range,
             source="checked (N8700/N6900 guides)",
         ),
-        ScpiProperty(
-            "output", "OUTPut[:STATe]", "bool", "Output on/off.", validator=boolean, source="checked"
-        ),
+        ScpiProperty("output", "OUTPut[:STATe]", "bool", "Output on/off.", validator=boolean, source="checked"),
         ScpiProperty(
             "watchdog_enabled",
             "OUTPut:PROTection:WDOG[:STATe]",

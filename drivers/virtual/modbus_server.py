@@ -84,9 +84,7 @@ class F4TModbusServer:
                 datatype=DataType.REGISTERS,
                 readonly=True,
             ),
-            SimData(
-                wc.DISPLAY_UNITS, values=[self.display_units], datatype=DataType.REGISTERS, readonly=True
-            ),
+            SimData(wc.DISPLAY_UNITS, values=[self.display_units], datatype=DataType.REGISTERS, readonly=True),
             SimData(wc.ALARM1_STATE, values=[61], datatype=DataType.REGISTERS, readonly=True),
             SimData(wc.CONTROL_MODE, values=[wc.MODE_AUTO], datatype=DataType.REGISTERS),
             SimData(
@@ -102,9 +100,7 @@ class F4TModbusServer:
                 readonly=True,
             ),
             SimData(wc.SET_POINT, values=wc.encode_float(conv(sp)), datatype=DataType.REGISTERS),
-            SimData(
-                wc.PROCESS_VALUE, values=wc.encode_float(conv(sp)), datatype=DataType.REGISTERS, readonly=True
-            ),
+            SimData(wc.PROCESS_VALUE, values=wc.encode_float(conv(sp)), datatype=DataType.REGISTERS, readonly=True),
         ]
         return SimDevice(id=self.unit, simdata=data, action=self._action)
 

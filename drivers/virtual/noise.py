@@ -42,9 +42,7 @@ class NoiseModel:
 
     def temperature(self, T_true_K: float, rng: np.random.Generator) -> float:
         """A surface-temperature reading / K."""
-        return _quantize(
-            T_true_K + self.temperature_white_K * rng.standard_normal(), self.temperature_quantum_K
-        )
+        return _quantize(T_true_K + self.temperature_white_K * rng.standard_normal(), self.temperature_quantum_K)
 
 
 #: No noise and no quantisation (for tests that compare against the true state).

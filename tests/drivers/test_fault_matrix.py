@@ -110,9 +110,7 @@ def test_a_short_delay_needs_no_retry(make_lab: Callable[..., VirtualLab]) -> No
 
 
 def test_random_faults_at_ten_percent(make_lab: Callable[..., VirtualLab]) -> None:
-    lab = make_lab(
-        scpi_faults=FaultConfig(drop=0.025, lose_reply=0.025, garble=0.025, disconnect=0.025, seed=3)
-    )
+    lab = make_lab(scpi_faults=FaultConfig(drop=0.025, lose_reply=0.025, garble=0.025, disconnect=0.025, seed=3))
     cyc = ScpiCycler.open(f"{lab.cycler_url}?timeout={TIMEOUT}", retries=4)
     cyc.set_current(1.0)
     cyc.output(True)

@@ -61,9 +61,7 @@ def test_parse_number(reply: str, value: float) -> None:
     assert codec.parse_number(reply, instrument="x", what="v") == value
 
 
-@pytest.mark.parametrize(
-    "reply", ["", "abc", "1,2", "nan", "inf", "+9.910000E+37", "9.9E37", "1.2.3", "#1.0"]
-)
+@pytest.mark.parametrize("reply", ["", "abc", "1,2", "nan", "inf", "+9.910000E+37", "9.9E37", "1.2.3", "#1.0"])
 def test_parse_number_rejects_garbage_naming_instrument_and_reply(reply: str) -> None:
     with pytest.raises(ReplyError) as info:
         codec.parse_number(reply, instrument="cycler[x]", what="voltage")

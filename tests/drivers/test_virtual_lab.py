@@ -131,6 +131,7 @@ def test_f4t_over_modbus_tcp_first_order_air(make_lab) -> None:  # noqa: ANN001
     with lab.lock:
         t0 = lab.advance()
         lab.chamber.sp_K = 45.0 + 273.15  # the same step the driver makes, at a known virtual time
+
     def model(t: float) -> float:
         return 45.0 - 20.0 * math.exp(-(t - t0) / 100.0)
 
@@ -239,9 +240,7 @@ def test_cell_over_temperature_trips_the_output(make_lab) -> None:  # noqa: ANN0
     assert state.tripped and "OT" in state.causes
     m = cyc.measure()
     assert (
-        m.current_A == pytest.approx(0.0, abs=2e-3)
-        and m.temperature_K is not None
-        and m.temperature_K > 273.15 + 79.0
+        m.current_A == pytest.approx(0.0, abs=2e-3) and m.temperature_K is not None and m.temperature_K > 273.15 + 79.0
     )
     cyc.close()
 
