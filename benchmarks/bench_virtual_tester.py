@@ -60,6 +60,12 @@ def bench_overhead(n: int) -> dict[str, dict[str, float]]:
                 op()
                 samples.append(time.perf_counter() - t0)
             out[name] = _stats_us(samples)
+        c = lab.cycler
+        out["physics_step"] = {
+            "mean_us": 1e6 * c.physics_wall_s / max(1, c.physics_steps),
+            "steps": float(c.physics_steps),
+            "load": lab.physics_load(),
+        }
         cyc.output(False)
         cyc.close()
     return out
@@ -83,12 +89,15 @@ def serve(speed: float, where: str) -> Iterator[str]:
         return
     cmd = [
         sys.executable,
-        "-m",
-        "battlab.cli.virtual_tester",
+        "-c",
+        "from battlab.cli import main; main()",
+        "virtual-tester",
         "serve",
         "--json",
         "--speed",
         str(speed),
+        "--physics",
+        "standin",
         "--cycler-port",
         "0",
         "--chamber-port",
@@ -164,7 +173,11 @@ def main() -> None:
     overhead = bench_overhead(n)
     print(f"per-sample driver overhead over loopback SCPI ({n} calls, stand-in physics)")
     for name, s in overhead.items():
+        if name == "physics_step":
+            continue
         print(f"  {name:<22} median {s['median_us']:7.1f} us   p99 {s['p99_us']:7.1f} us")
+    ps = overhead["physics_step"]
+    print(f"  stand-in physics: {ps['mean_us']:.1f} us per 1 s step ({ps['load']:.1%} of real time at 1000x)")
     max_rtf = 1.0 / (overhead["set_current+measure"]["median_us"] * 1e-6)
     print(
         f"  => at 1 sample per virtual second the link alone allows ~{max_rtf:,.0f}x real time "

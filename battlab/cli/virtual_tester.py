@@ -80,6 +80,13 @@ def virtual_tester() -> None:
     help="Virtual seconds per real second.",
 )
 @click.option("--cell", default="nca18650", show_default=True, help="Cell for battlab's physics factory.")
+@click.option(
+    "--physics",
+    type=click.Choice(["auto", "standin"]),
+    default="auto",
+    show_default=True,
+    help="auto: battlab.virtual.make_cell_physics if available, else the stand-in; standin: always the stand-in.",
+)
 @click.option("--soc0", default=0.5, show_default=True, type=click.FloatRange(0.0, 1.0), help="Initial SOC.")
 @click.option("--ambient", default=25.0, show_default=True, type=float, help="Initial chamber air / degC.")
 @click.option(
@@ -112,6 +119,7 @@ def serve(
     host: str,
     speed: float,
     cell: str,
+    physics: str,
     soc0: float,
     ambient: float,
     air_tau: float,
@@ -122,7 +130,9 @@ def serve(
 ) -> None:
     """Serve the virtual instruments until Ctrl-C (or --duration)."""
     try:
-        physics, physics_name = load_cell_physics(cell)
+        cell_physics, physics_name = (
+            load_cell_physics(cell) if physics == "auto" else (EquivalentCircuitCell(), "stand-in (requested)")
+        )
     except InputError as exc:
         raise click.ClickException(str(exc)) from None
     T0 = ambient + 273.15
@@ -140,7 +150,7 @@ def serve(
     )
     if host != LOOPBACK:
         click.echo(f"warning: listening on {host}, not loopback: reachable from the network", err=True)
-    lab = VirtualLab(physics, config)
+    lab = VirtualLab(cell_physics, config)
     try:
         lab.start()
     except (OSError, RuntimeError) as exc:
@@ -176,6 +186,3 @@ def _serve_until_stopped(lab: VirtualLab, duration: float | None) -> None:
 
 
 __all__ = ["load_cell_physics", "serve", "virtual_tester"]
-
-if __name__ == "__main__":  # python -m battlab.cli.virtual_tester serve ...
-    virtual_tester()

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from collections import deque
 from dataclasses import dataclass
 
@@ -147,6 +148,9 @@ class SimulatedCycler:
         self.i_true = 0.0
         self.T_cell_K = float("nan")
         self._dvdt = 0.0
+        #: cost of the physics: number of steps and the real seconds spent in them
+        self.physics_steps = 0
+        self.physics_wall_s = 0.0
 
     # -- state ------------------------------------------------------------------------------------
     @property
@@ -203,7 +207,10 @@ class SimulatedCycler:
             dt = t_next - self.t
             if not self.model_failed:
                 try:
+                    w0 = time.perf_counter()
                     v, T = self.physics.step(current, dt, ambient_K)
+                    self.physics_wall_s += time.perf_counter() - w0
+                    self.physics_steps += 1
                 except Exception as exc:  # the model is foreign code: any failure → output off
                     self.model_failed = True
                     self.trip({MODEL}, f"cell model failed: {exc}", t_next)

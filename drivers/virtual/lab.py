@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -168,12 +169,27 @@ class VirtualLab:
 
     # -- time ---------------------------------------------------------------------------------------------
     def _tick_loop(self) -> None:
+        warned_at = -1e9
         while not self._stop.wait(self.config.tick_real_s):
             try:
                 with self.lock:
                     self.advance()
+                load = self.physics_load()
+                if load > 0.8 and time.monotonic() - warned_at > 60.0:
+                    warned_at = time.monotonic()
+                    log.warning(
+                        "virtual lab: the cell physics uses %.0f%% of real time at %gx: lower the speed "
+                        "or raise max_step_s, or replies will lag",
+                        100 * load,
+                        self.clock.speed,
+                    )
             except Exception:
                 log.exception("virtual lab: advance failed")
+
+    def physics_load(self) -> float:
+        """Real seconds spent in the physics per real second elapsed (> 1: the physics cannot keep up)."""
+        elapsed_real = self._t / self.clock.speed
+        return self.cycler.physics_wall_s / elapsed_real if elapsed_real > 0 else 0.0
 
     def advance(self) -> float:
         """Advance every simulated instrument to the clock's now (call with ``lock`` held); returns now."""

@@ -29,8 +29,9 @@ def test_help() -> None:
 def test_serve_in_a_process_then_ctrl_c() -> None:
     cmd = [
         sys.executable,
-        "-m",
-        "battlab.cli.virtual_tester",
+        "-c",
+        "from battlab.cli import main; main()",
+        "virtual-tester",
         "serve",
         "--cycler-port",
         "0",
