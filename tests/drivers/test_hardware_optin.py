@@ -1,7 +1,7 @@
 """Opt-in tests against real instruments (pymeasure's practice): skipped unless a URL is given.
 
-    BATTLAB_HW_CYCLER=socket://192.0.2.10:5025 BATTLAB_HW_DIALECT=keysight-n7951a pytest tests/drivers -k hardware
-    BATTLAB_HW_CHAMBER=modbus-tcp://192.0.2.11:502 pytest tests/drivers -k hardware
+    BATTLAB_HW_CYCLER=socket://CYCLER-HOST:5025 BATTLAB_HW_DIALECT=keysight-n7951a pytest tests/drivers -k hardware
+    BATTLAB_HW_CHAMBER=modbus-tcp://CHAMBER-HOST:502 pytest tests/drivers -k hardware
 
 Read-only except that the cycler's output is switched *off* (never on).
 """

@@ -17,13 +17,13 @@ from protocols.errors import InputError
         ("/dev/ttyUSB0", "serial", None, None, "/dev/ttyUSB0", {}),
         ("/dev/ttyUSB0?baud=115200", "serial", None, None, "/dev/ttyUSB0", {"baud": "115200"}),
         ("COM3", "serial", None, None, "COM3", {}),
-        ("modbus-tcp://10.0.0.7:502", "modbus-tcp", "10.0.0.7", 502, None, {}),
-        ("modbus-tcp://chamber.lab", "modbus-tcp", "chamber.lab", 502, None, {}),
+        ("modbus-tcp://127.0.0.7:502", "modbus-tcp", "127.0.0.7", 502, None, {}),
+        ("modbus-tcp://localhost", "modbus-tcp", "localhost", 502, None, {}),
         ("modbus-tcp://127.0.0.1:1502?unit=3", "modbus-tcp", "127.0.0.1", 1502, None, {"unit": "3"}),
         ("modbus-rtu:///dev/ttyUSB1?baud=38400", "modbus-rtu", None, None, "/dev/ttyUSB1", {"baud": "38400"}),
         ("modbus-rtu+socket://127.0.0.1:4001", "modbus-rtu+socket", "127.0.0.1", 4001, None, {}),
         ("espec://127.0.0.1:10001", "espec", "127.0.0.1", 10001, None, {}),
-        ("espec://chamber", "espec", "chamber", 10001, None, {}),
+        ("espec://localhost", "espec", "localhost", 10001, None, {}),
         ("espec:///dev/ttyS0?baud=9600", "espec", None, None, "/dev/ttyS0", {"baud": "9600"}),
         ("virtual", "virtual", None, None, None, {}),
     ],
@@ -67,8 +67,8 @@ def test_bad_option_values_are_input_errors() -> None:
         parse_url("modbus-tcp://127.0.0.1?unit=x").int_option("unit", 1)
 
 
-@given(st.integers(1, 65535), st.ip_addresses(v=4))
-def test_socket_urls_round_trip(port: int, address: object) -> None:
-    url = f"socket://{address}:{port}"
+@given(st.integers(1, 65535), st.integers(1, 254))
+def test_socket_urls_round_trip(port: int, last_octet: int) -> None:
+    url = f"socket://127.0.0.{last_octet}:{port}"  # loopback only, even in parse-only tests
     u = parse_url(url)
-    assert (u.host, u.port, u.pyserial_url) == (str(address), port, url)
+    assert (u.host, u.port, u.pyserial_url) == (f"127.0.0.{last_octet}", port, url)
