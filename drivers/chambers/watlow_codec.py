@@ -1,12 +1,13 @@
 """Watlow F4T Modbus register codec (pure functions, no I/O).
 
-Register map of control loop 1 (loop n: + (n − 1) × 160), checked against Watlow's F4T Setup and Operations
-User's Guide (Modbus relative addresses, Chapter 6) and Espec North America's ChamberConnectLibrary
-(``watlowf4t.py``): process value 2820, set point 2782, range low/high 2774/2776 (IEEE float, two registers,
-**low word first**), control mode 2730 (10 = auto, 54 = manual, 62 = off), display units 1328 (15 = °C,
-30 = °F), alarm *n* state 1356 + (n − 1) × 100 (inactive: 12 clear, 61 none, 88 startup), part number
-16–30 (one character per register). The value the virtual F4T uses for an *active* alarm (37, "high") is
-an assumption.
+Register map of control loop 1 (loop n: + (n − 1) × 160). Seen in the Modbus tables of Watlow's F4T Setup and
+Operations User's Guide (Chapter 6, relative addresses): part number 16–30, display units 1328 (15 = °C,
+30 = °F), alarm blocks 100 registers apart, loop registers 160 apart, IEEE floats in two registers. Taken
+from Espec North America's ChamberConnectLibrary (``watlowf4t.py``, which drives real F4Ts): process value
+2820, set point 2782, range low/high 2774/2776, control mode 2730 (10 = auto, 54 = manual, 62 = off), alarm
+*n* state 1356 + (n − 1) × 100 (inactive: 12 clear, 61 none, 88 startup), and the float word order, **low
+word first** (``struct.pack("HH", …)`` on a little-endian host). The value the virtual F4T reports for an
+*active* alarm (37, "high") is an assumption.
 """
 
 from __future__ import annotations
