@@ -29,6 +29,8 @@ from scipy.sparse.linalg import splu
 
 from battlab.model.dfn import DFN
 
+#: the library is built on (and cached for) this machine, so it may use its instruction set
+CFLAGS = ("-O3", "-march=native")
 _INT = ctypes.c_int
 _PI = ctypes.POINTER(ctypes.c_int)
 _PD = ctypes.POINTER(ctypes.c_double)
@@ -164,7 +166,7 @@ class NativeStepper:
             cg.add(f)
         src = cg.dump() + "\n" + resources.files("battlab.model").joinpath("stepper.c").read_text()
         debug = "debug" if os.environ.get("BATTLAB_DEBUG_STEPPER") else ""
-        digest = hashlib.sha256((src + debug).encode()).hexdigest()[:20]
+        digest = hashlib.sha256((src + debug + " ".join(CFLAGS) + _machine_tag()).encode()).hexdigest()[:20]
         lib_path = cache_dir() / f"bl_{digest}.so"
         self.generate_seconds = time.perf_counter() - t0
         t1 = time.perf_counter()
@@ -234,6 +236,20 @@ class NativeStepper:
         return int(done), int(code.value), int(iters.value)
 
 
+def _machine_tag() -> str:
+    """The CPU's identity (``-march=native`` code must not be reused on another processor)."""
+    import platform
+
+    tag = platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith(("flags", "model name")):
+                tag += line
+    except OSError:
+        pass
+    return tag
+
+
 def _compile(src: str, lib_path: Path) -> None:
     cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
     if cc is None:
@@ -242,7 +258,7 @@ def _compile(src: str, lib_path: Path) -> None:
         c_file = Path(tmp) / "bl_model.c"
         c_file.write_text(src)
         so = Path(tmp) / lib_path.name
-        cmd = [cc, "-O2", "-fPIC", "-shared", "-o", str(so), str(c_file), "-lm"]
+        cmd = [cc, *CFLAGS, "-fPIC", "-shared", "-o", str(so), str(c_file), "-lm"]
         if os.environ.get("BATTLAB_DEBUG_STEPPER"):
             cmd.insert(1, "-DBL_DEBUG")
         proc = subprocess.run(cmd, capture_output=True, text=True)

@@ -243,6 +243,7 @@ class Trajectory:
     n_steps: int
     final_state: np.ndarray
     seconds: float
+    newton_iterations: int = 0
 
 
 def initial_state(model: DFN, soc0: float, theta_bar: np.ndarray, T0: float) -> np.ndarray:
@@ -463,13 +464,13 @@ def run_native(
     x0 = initial_state(model, soc0, th, T0)
     y = np.concatenate([x0, guess_algebraic(model, x0, I_dis[0])])
     xp = x0.copy()
-    S = np.zeros((ns, nx))  # C layout: parameter-major
+    S = np.zeros((nx, ns))  # C layout: row-major, S[i, j] = dx_i/dθ̄_sel[j]
     if ns:
         spec = parameters.SPECS["c_e0"]
         k_ce = parameters.NAMES.index("c_e0")
         for j, s in enumerate(sel):
             if s == k_ce:
-                S[j, lay.slices()["ce"]] = (spec.upper - spec.lower) / C_SCALE
+                S[lay.slices()["ce"], j] = (spec.upper - spec.lower) / C_SCALE
     Sp = S.copy()
     lim = np.array([limits["V_min"], limits["V_max"], limits["T_max"]])
     if not stepper.analysed:
@@ -519,5 +520,5 @@ def run_native(
     return Trajectory(
         V, T1, T2, smin, smax,
         outdV[:n_keep] if ns else None, outdT2[:n_keep] if ns else None,
-        n_keep, ended_by, int(h.size - 1), y, time.perf_counter() - t_start,
+        n_keep, ended_by, int(h.size - 1), y, time.perf_counter() - t_start, n_iter,
     )

@@ -96,6 +96,31 @@ static void lu_solve(const Problem *P, const double *a, double *b, double *c) {
   for (k = 0; k < n; ++k) b[P->pcol[k]] = c[k];
 }
 
+/* solve J X = B for ns right-hand sides at once; B is n x ns row-major (B[i*ns + j]); C: work [n*ns] */
+static void lu_solve_multi(const Problem *P, const double *a, double *B, double *C, int ns) {
+  int k, l, j, n = P->n;
+  for (k = 0; k < n; ++k) memcpy(C + (size_t)k * ns, B + (size_t)P->prow[k] * ns, sizeof(double) * ns);
+  for (k = 0; k < n; ++k) {
+    const double *ck = C + (size_t)k * ns;
+    for (l = P->lptr[k]; l < P->lptr[k + 1]; ++l) {
+      double v = a[P->lslot[l]];
+      double *ci = C + (size_t)P->lrow[l] * ns;
+      for (j = 0; j < ns; ++j) ci[j] -= v * ck[j];
+    }
+  }
+  for (k = n - 1; k >= 0; --k) {
+    double *ck = C + (size_t)k * ns;
+    double inv = 1.0 / a[P->piv[k]];
+    for (j = 0; j < ns; ++j) ck[j] *= inv;
+    for (l = P->ucptr[k]; l < P->ucptr[k + 1]; ++l) {
+      double v = a[P->ucslot[l]];
+      double *ci = C + (size_t)P->ucrow[l] * ns;
+      for (j = 0; j < ns; ++j) ci[j] -= v * ck[j];
+    }
+  }
+  for (k = 0; k < n; ++k) memcpy(B + (size_t)P->pcol[k] * ns, C + (size_t)k * ns, sizeof(double) * ns);
+}
+
 static double norm_inf(const double *v, int n) {
   double m = 0.0;
   int i;
@@ -111,10 +136,10 @@ static double norm_inf(const double *v, int n) {
 static int newton(const Problem *P, double *ynew, const double *xn, const double *xp, const double *u,
                   const double *th, double *lu, int *have_lu, double *R, double *jnz, double *c,
                   double tol, int maxit) {
-  int it, njac = 0;
+  int it, njac = 0, fresh_last = 0;
   double prev = INFINITY, dy = INFINITY;
   for (it = 0; it < maxit; ++it) {
-    double r, ymax;
+    double r, scale;
     call5(bl_res, ynew, xn, xp, u, th, R, 0);
     r = norm_inf(R, P->n);
 #ifdef BL_DEBUG
@@ -122,16 +147,19 @@ static int newton(const Problem *P, double *ynew, const double *xn, const double
 #endif
     if (!isfinite(r)) return -1;
     if (r < 1e-13) return it;
-    /* converged: a small residual and a last update near round-off (so that the solution, not only the
-       residual, is exact enough for sensitivities to match finite differences), or the round-off floor */
-    ymax = norm_inf(ynew, P->n);
-    if (r < tol && (dy < 1e-11 * (1.0 + ymax) || r > 0.5 * prev)) return it;
+    /* converged: residual below tol and the solution itself exact to ~1e-12 (so sensitivities match finite
+       differences): after a Newton update with a Jacobian taken at the previous iterate the error is
+       O(dy^2); after a chord update it is O(rate dy); or the residual sits at its round-off floor */
+    scale = 1.0 + norm_inf(ynew, P->n);
+    if (r < tol && (dy < (fresh_last ? 1e-6 : 1e-11) * scale || r > 0.5 * prev)) return it;
     /* chord iterations on the last factorisation while they contract fast, else a fresh Jacobian */
-    if (!*have_lu || (it > 0 && r > 0.03 * prev)) {
+    fresh_last = 0;
+    if (!*have_lu || (it > 0 && r > 0.03 * prev && r >= tol)) {
       if (njac >= 6) return -1;
       call5(bl_jac, ynew, xn, xp, u, th, jnz, 0);
       if (lu_factor(P, jnz, lu)) { *have_lu = 0; return -2; }
       *have_lu = 1;
+      fresh_last = 1;
       ++njac;
     }
     prev = r;
@@ -142,25 +170,25 @@ static int newton(const Problem *P, double *ynew, const double *xn, const double
   return -1;
 }
 
-/* sensitivities of a converged step: J S = -(alpha SN + beta SP on x rows + dR/dth[:, sel]) */
+/* sensitivities of a converged step: J S = -(alpha SN + beta SP on x rows + dR/dth[:, sel]).
+ * Layout: row-major, S[i*ns + j] = dy_i/dth_sel[j]. C: work [n*ns]. */
 static int sens(const Problem *P, const double *y, const double *xn, const double *xp, const double *u,
                 const double *th, const int *sel, int ns, const double *SN, const double *SP, double *Sy,
-                double *lu, double *jnz, double *jth, double *c) {
+                double *lu, double *jnz, double *jth, double *C) {
   int n = P->n, nx = P->nx, j, i;
   double w = u[1];
   double alpha = -(1 + w) * (1 + w) / (1 + 2 * w), beta = w * w / (1 + 2 * w);
   call5(bl_jac, y, xn, xp, u, th, jnz, 0);
   if (lu_factor(P, jnz, lu)) return -2;
   call5(bl_jth, y, xn, xp, u, th, jth, 0);
+  for (i = 0; i < nx * ns; ++i) Sy[i] = alpha * SN[i] + beta * SP[i];
+  memset(Sy + (size_t)nx * ns, 0, sizeof(double) * (size_t)(n - nx) * ns);
   for (j = 0; j < ns; ++j) {
-    double *b = Sy + (size_t)j * n;
     int col = sel[j];
-    memset(b, 0, sizeof(double) * n);
-    for (i = 0; i < nx; ++i) b[i] = alpha * SN[(size_t)j * nx + i] + beta * SP[(size_t)j * nx + i];
-    for (i = P->jth_colptr[col]; i < P->jth_colptr[col + 1]; ++i) b[P->jth_row[i]] += jth[i];
-    lu_solve(P, lu, b, c);
-    for (i = 0; i < n; ++i) b[i] = -b[i];
+    for (i = P->jth_colptr[col]; i < P->jth_colptr[col + 1]; ++i) Sy[(size_t)P->jth_row[i] * ns + j] += jth[i];
   }
+  lu_solve_multi(P, lu, Sy, C, ns);
+  for (i = 0; i < n * ns; ++i) Sy[i] = -Sy[i];
   return 0;
 }
 
@@ -174,18 +202,18 @@ static void output(const Problem *P, const double *y, const double *u, const dou
     g_arg[0] = y; g_arg[1] = u; g_arg[2] = th;
     g_res[0] = vy; g_res[1] = vth;
     bl_outj(g_arg, g_res, g_iw, g_w, 0);
-    for (int j = 0; j < ns; ++j) {
-      const double *s = Sy + (size_t)j * P->n;
-      double acc = vth[sel[j]];
-      for (int i = 0; i < P->n; ++i) acc += vy[i] * s[i];
-      dV[j] = acc;
-      dT2[j] = s[P->iT2];
+    for (int j = 0; j < ns; ++j) dV[j] = vth[sel[j]];
+    for (int i = 0; i < P->n; ++i) {
+      double v = vy[i];
+      if (v != 0.0)
+        for (int j = 0; j < ns; ++j) dV[j] += v * Sy[(size_t)i * ns + j];
     }
+    for (int j = 0; j < ns; ++j) dT2[j] = Sy[(size_t)P->iT2 * ns + j];
   }
 }
 
 /* Run steps [0, nsteps). State in/out: y[n], xp[nx], S[nx*ns], Sp[nx*ns] (column-major per parameter),
- * Sy[n*ns] work/out. sched: h, w, I per step; out_idx[k] >= 0: write sample out_idx[k] after step k with the
+ * Sy[n*ns] work/out; sensitivity arrays row-major (S[i*ns + j]). sched: h, w, I per step; out_idx[k] >= 0: write sample out_idx[k] after step k with the
  * right-limit current out_I[k]. Returns nsteps on success, else the index of the failed step (and *code:
  * -1 Newton, -2 singular), or the number of steps done when a sample broke a limit (*code = 1). */
 int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const double *I, const double *Tamb,
@@ -194,11 +222,13 @@ int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const
            double *outdT2, int *code, int *iters) {
   int n = P->n, nx = P->nx, k, have_lu = 0, have_lu0 = 0;
   size_t nsx = (size_t)nx * (ns > 0 ? ns : 1);
-  double *ynew = malloc(sizeof(double) * n), *R = malloc(sizeof(double) * n), *c = malloc(sizeof(double) * n);
+  double *ynew = malloc(sizeof(double) * n), *R = malloc(sizeof(double) * n);
+  double *c = malloc(sizeof(double) * (size_t)n * (ns > 0 ? ns : 1));
   double *xn = malloc(sizeof(double) * nx), *jnz = malloc(sizeof(double) * (P->jac_nnz + 1));
   double *jth = malloc(sizeof(double) * (P->jth_nnz + 1));
   double *lu = malloc(sizeof(double) * P->nslot), *lu0 = malloc(sizeof(double) * P->nslot);
-  double *y0 = malloc(sizeof(double) * n);
+  double *y0 = malloc(sizeof(double) * n), *yprev = malloc(sizeof(double) * n);
+  int have_right = 0;
   double *Sy0 = malloc(sizeof(double) * (size_t)n * (ns > 0 ? ns : 1));
   double *vy = malloc(sizeof(double) * n), *vth = malloc(sizeof(double) * (P->nth + 1));
   int ret = nsteps;
@@ -209,7 +239,17 @@ int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const
     double u[4] = {h[k], w[k], I[k], Tamb[k]};
     int it;
     memcpy(xn, y, sizeof(double) * nx);
-    memcpy(ynew, y, sizeof(double) * n);
+    /* predictor: after a current step, the right-limit state found for the output; on a continuing BDF2
+       step, linear extrapolation of the last two solutions; else the last solution */
+    if (have_right) {
+      memcpy(ynew, y0, sizeof(double) * n);
+    } else if (w[k] > 0.0 && k > 1 && h[k - 1] > 0.0 && I[k - 1] == I[k] && I[k - 2] == I[k] && out_idx[k - 2] < 0) {
+      double r = h[k] / h[k - 1];
+      for (int i = 0; i < n; ++i) ynew[i] = y[i] + r * (y[i] - yprev[i]);
+    } else {
+      memcpy(ynew, y, sizeof(double) * n);
+    }
+    have_right = 0;
     it = newton(P, ynew, xn, xp, u, th, lu, &have_lu, R, jnz, c, tol, maxit);
     if (it < 0) { *code = it; ret = k; break; }
     *iters += it;
@@ -218,9 +258,10 @@ int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const
       if (s) { *code = s; ret = k; break; }
       have_lu = 1; /* the exact Jacobian at the solution is the next chord matrix */
       if (h[k] > 0) memcpy(Sp, S, sizeof(double) * nsx);
-      for (int j = 0; j < ns; ++j) memcpy(S + (size_t)j * nx, Sy + (size_t)j * n, sizeof(double) * nx);
+      memcpy(S, Sy, sizeof(double) * nsx); /* the x rows come first in row-major Sy */
     }
     if (h[k] > 0) memcpy(xp, xn, sizeof(double) * nx);
+    memcpy(yprev, y, sizeof(double) * n);
     memcpy(y, ynew, sizeof(double) * n);
     if (out_idx[k] >= 0) {
       int m = out_idx[k];
@@ -238,6 +279,7 @@ int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const
           have_lu0 = 1;
         }
         output(P, y0, u0, th, sel, ns, Sy0, o, outdV + (size_t)m * ns, outdT2 + (size_t)m * ns, vy, vth);
+        have_right = 1;
       }
       /* limits [V_min, V_max, T_max]: stop at the first sample beyond them (or with an empty/full surface) */
       if (!(o[0] >= limits[0] && o[0] <= limits[1] && o[2] <= limits[2] && o[3] > 0.0 && o[4] < 1.0)) {
@@ -247,7 +289,7 @@ int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const
       }
     }
   }
-  free(ynew); free(R); free(c); free(xn); free(jnz); free(jth); free(lu); free(lu0); free(y0);
+  free(ynew); free(R); free(c); free(xn); free(jnz); free(jth); free(lu); free(lu0); free(y0); free(yprev);
   free(Sy0); free(vy); free(vth);
   return ret;
 }
