@@ -1,0 +1,109 @@
+"""A stateful cell for the virtual tester: advance by (current, dt) and read voltage and temperatures.
+
+The same compiled stepper and step rules as :func:`battlab.simulate` (a restart after every current change,
+steps growing up to ``dt_max``), applied incrementally, so a profile played through :class:`LiveCell` one sample
+at a time reproduces ``simulate`` on that profile.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from battlab import parameters
+from battlab.cell import Cell
+from battlab.model import solver
+from battlab.model.mesh import Mesh
+from protocols.errors import InputError
+
+
+class LiveCell:
+    """The DFN–thermal cell as a state machine. Currents in A, positive = charge; temperatures in K."""
+
+    def __init__(
+        self,
+        cell: Cell,
+        soc0: float,
+        T0: float = 298.15,
+        *,
+        mesh: Mesh | None = None,
+        isothermal: bool = False,
+        settings: solver.Settings | None = None,
+    ) -> None:
+        self.cell = cell
+        self.settings = settings or solver.Settings()
+        self._stepper = solver.native_stepper(cell, mesh or Mesh(), isothermal)
+        self._theta = np.array([cell.normalised(n) for n in parameters.NAMES])
+        self.reset(soc0, T0)
+
+    def reset(self, soc0: float, T0: float) -> None:
+        """Rest at ``soc0`` and uniform temperature ``T0`` [K]."""
+        if not 0.0 <= soc0 <= 1.0:
+            raise InputError(f"soc0 must be in [0, 1], got {soc0}")
+        model = self._stepper.model
+        x0 = solver.initial_state(model, soc0, self._theta, T0)
+        self._y = np.concatenate([x0, solver.guess_algebraic(model, x0, 0.0)])
+        self._xp = x0.copy()
+        if not self._stepper.analysed:
+            u = np.array([1.0, 0.0, float(self.cell["Q_nom"]), T0])
+            self._stepper.analyse_at(self._y, x0, x0, u, self._theta)
+        self._I_dis = 0.0
+        self._h_prev = 0.0
+        self._h_allowed = self.settings.dt_first
+        self.t = 0.0
+        self.voltage, self.T_core, self.T_surface = self._advance(0.0, 0.0, T0, first=True)
+
+    def _advance(self, I_dis: float, dt: float, ambient: float, first: bool = False) -> tuple[float, float, float]:
+        s = self.settings
+        restart = first or I_dis != self._I_dis
+        hs: list[float] = [0.0] if first else []
+        ws: list[float] = [0.0] if first else []
+        if restart:
+            self._h_allowed = s.dt_first
+        remaining = dt
+        h_prev = 0.0 if restart else self._h_prev
+        while remaining > 1e-12 * max(1.0, dt):
+            if remaining <= 1.2 * self._h_allowed:
+                h = remaining
+            elif remaining <= 2.0 * self._h_allowed:
+                h = remaining / 2.0
+            else:
+                h = self._h_allowed
+            hs.append(h)
+            ws.append(0.0 if h_prev == 0.0 else h / h_prev)
+            h_prev = h
+            remaining -= h
+            self._h_allowed = min(h * s.growth, s.dt_max)
+        if not hs:  # dt == 0: re-solve the algebraic state for the new current
+            hs, ws = [0.0], [0.0]
+        n = len(hs)
+        out_idx = np.full(n, -1, dtype=np.int32)
+        out_idx[-1] = 0
+        out = np.full((1, 5), np.nan)
+        dummy = np.zeros((1, 1))
+        lim = np.array([-np.inf, np.inf, np.inf])
+        args = (np.array(hs), np.array(ws), np.full(n, I_dis), np.full(n, ambient), out_idx, np.full(n, I_dis),
+                self._theta, np.zeros(0, dtype=np.int32))
+        y0, xp0 = self._y.copy(), self._xp.copy()
+        done, code, _ = self._stepper.run(*args, self._y, self._xp, np.zeros(0), np.zeros(0), out, dummy, dummy, lim)
+        if code == -2:  # a pivot vanished: new pivot order at this state, then retry from the start
+            self._y, self._xp = y0, xp0
+            u = np.array([max(hs[-1], 1e-3), 0.0, I_dis, ambient])
+            self._stepper.analyse_at(self._y, self._y[: len(xp0)], self._xp, u, self._theta)
+            done, code, _ = self._stepper.run(*args, self._y, self._xp, np.zeros(0), np.zeros(0), out, dummy, dummy,
+                                              lim)
+        if code < 0:
+            raise RuntimeError(f"cell model: step did not converge at t = {self.t + sum(hs[:done]):.3f} s")
+        self._I_dis = I_dis
+        self._h_prev = h_prev if h_prev > 0 else self._h_prev
+        V, T1, T2, smin, smax = out[0]
+        if not (smin > 0.0 and smax < 1.0):
+            raise RuntimeError("cell model: a particle surface emptied or filled (the cell is beyond its limits)")
+        return float(V), float(T1), float(T2)
+
+    def step(self, current: float, dt: float, ambient: float) -> tuple[float, float]:
+        """Apply ``current`` [A, positive = charge] for ``dt`` [s] at ``ambient`` [K]; return (V, T_surface)."""
+        if dt < 0 or not np.isfinite(dt) or not np.isfinite(current):
+            raise InputError(f"step: need finite current and dt ≥ 0, got {current} A, {dt} s")
+        self.voltage, self.T_core, self.T_surface = self._advance(-float(current), float(dt), float(ambient))
+        self.t += dt
+        return self.voltage, self.T_surface
