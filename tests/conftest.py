@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
+
+if TYPE_CHECKING:
+    from battlab import Cell
 
 DATA = Path(os.environ.get("BATTLAB_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
@@ -21,3 +25,44 @@ def shared_data() -> Path:
     if not DATA.is_dir():
         pytest.skip(f"shared data not found at {DATA} (set BATTLAB_DATA)")
     return DATA
+
+
+@pytest.fixture(scope="session")
+def nmc_bpx(shared_data: Path) -> Path:
+    """The NMC pouch cell of the BPX examples (12.5 Ah), the cell of the PyBaMM comparisons."""
+    path = shared_data / "bpx" / "nmc_pouch_cell_BPX.json"
+    if not path.is_file():
+        pytest.fail(f"{path} is missing from the shared data")
+    return path
+
+
+@pytest.fixture(scope="session")
+def nca18650() -> Cell:
+    """The built-in 2.7 Ah NCA 18650 at the paper's nominal values."""
+    from battlab import Cell
+
+    return Cell.load("nca18650")
+
+
+@pytest.fixture
+def solver_trajectories(monkeypatch: pytest.MonkeyPatch) -> list:
+    """The raw ``battlab.model.solver.Trajectory`` of every ``battlab.simulate`` call made in the test.
+
+    ``simulate`` returns only outputs; tests of the state (lithium inventory, SOC) read ``final_state`` from the
+    solver's trajectory, whichever stepper (``run`` or ``run_native``) produced it.
+    """
+    from battlab.model import solver
+
+    captured: list = []
+    for name in ("run", "run_native"):
+        fn = getattr(solver, name, None)
+        if fn is None:
+            continue
+
+        def spy(*args: object, _fn=fn, **kwargs: object) -> object:
+            traj = _fn(*args, **kwargs)
+            captured.append(traj)
+            return traj
+
+        monkeypatch.setattr(solver, name, spy)
+    return captured
