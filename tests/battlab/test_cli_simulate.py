@@ -1,0 +1,203 @@
+"""``battlab simulate CELL PROFILE.csv [--soc0] [--isothermal] [--sens] -o OUT``: files against the API, and
+one-line errors with exit code 2."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner, Result
+
+import battlab
+from battlab import Cell, parameters
+from battlab.cli import main
+from protocols import Profile
+
+ONE_C = 2.7
+BASE_COLUMNS = ["Test Time / s", "Voltage / V", "Current / A", "Ambient Temperature / degC",
+                "Surface Temperature T1 / degC"]
+
+
+@pytest.fixture(scope="module")
+def profile() -> Profile:
+    """Charge and discharge pulses (both signs in the file), 1 s samples, 120 s."""
+    return Profile.from_segments(np.array([10.0, 30.0, 20.0, 30.0, 30.0]),
+                                 np.array([0.0, 2.0 * ONE_C, 0.0, -1.5 * ONE_C, 0.0]))
+
+
+@pytest.fixture
+def profile_csv(profile: Profile, tmp_path: Path) -> Path:
+    return profile.to_csv(tmp_path / "pulses.csv")
+
+
+def invoke(*args: str) -> Result:
+    result = CliRunner().invoke(main, list(args))
+    if result.exception is not None and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    return result
+
+
+def read_h5(path: Path) -> tuple[dict[str, np.ndarray], dict[str, object]]:
+    """Columns (by their BDF names) and metadata of a result written as HDF5."""
+    with h5py.File(path, "r") as f:
+        cols = {ds.attrs["column"]: ds[()] for ds in f["data"].values()}
+        meta = {k: json.loads(v) for k, v in f.attrs.items()}
+    return cols, meta
+
+
+def check_against_api(cols: dict[str, np.ndarray], res: battlab.Result, ambient_degC: float = 25.0) -> None:
+    """File columns equal the API's result (to the 10 significant digits a CSV keeps); the current keeps its
+    sign (positive = charge)."""
+    close = {"rtol": 1e-9, "atol": 1e-12}
+    np.testing.assert_allclose(cols["Test Time / s"], res.t, **close)
+    np.testing.assert_allclose(cols["Voltage / V"], res.voltage, **close)
+    np.testing.assert_allclose(cols["Current / A"], res.current, **close)
+    assert np.any(cols["Current / A"] > 0) and np.any(cols["Current / A"] < 0)
+    np.testing.assert_allclose(cols["Surface Temperature T1 / degC"], res.T_surface - 273.15, rtol=1e-9, atol=1e-8)
+    np.testing.assert_allclose(cols["Ambient Temperature / degC"], ambient_degC, atol=1e-9)
+    for j, name in enumerate(res.parameters):
+        np.testing.assert_allclose(cols[f"dV/d{name} / V"], res.sensitivities[:, j], rtol=1e-9, atol=1e-13)
+        np.testing.assert_allclose(cols[f"dT_surface/d{name} / K"], res.sensitivities_T[:, j], rtol=1e-9,
+                                   atol=1e-13)
+
+
+# --- outputs ------------------------------------------------------------------------------------------------------
+def test_bdf_csv_matches_the_api(nca18650: Cell, profile: Profile, profile_csv: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out.bdf.csv"
+    result = invoke("simulate", "nca18650", str(profile_csv), "--soc0", "0.5", "--sens", "R_s_n", "-o", str(out))
+    assert result.exit_code == 0, result.output
+    table = pd.read_csv(out)
+    assert set(BASE_COLUMNS + ["dV/dR_s_n / V", "dT_surface/dR_s_n / K"]) <= set(table.columns)
+    assert not any(c.startswith("dV/d") and c != "dV/dR_s_n / V" for c in table.columns)
+    res = battlab.simulate(nca18650, profile, soc0=0.5, ambient=298.15, sensitivities=["R_s_n"])
+    check_against_api({c: table[c].to_numpy() for c in table.columns}, res)
+    meta = json.loads((tmp_path / "out.meta.json").read_text())
+    assert meta["cell"] == "nca18650" and meta["soc0"] == 0.5 and meta["ended_by"] is None
+    assert meta["sensitivity_parameters"] == ["R_s_n"] and meta["cell_hash"] == nca18650.hash()
+    assert "out.bdf.csv" in result.stderr  # the summary line
+
+
+def test_hdf5_matches_the_api(nca18650: Cell, profile: Profile, profile_csv: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out.h5"
+    result = invoke("simulate", "nca18650", str(profile_csv), "--soc0", "0.5", "--sens", "R_s_n,k_p",
+                    "--isothermal", "-o", str(out))
+    assert result.exit_code == 0, result.output
+    cols, meta = read_h5(out)
+    assert set(BASE_COLUMNS) <= set(cols)
+    res = battlab.simulate(nca18650, profile, soc0=0.5, isothermal=True, sensitivities=["R_s_n", "k_p"])
+    check_against_api(cols, res)
+    np.testing.assert_allclose(cols["Surface Temperature T1 / degC"], 25.0, atol=1e-9)
+    assert meta["isothermal"] is True and meta["sensitivity_parameters"] == ["R_s_n", "k_p"]
+
+
+def test_all_sensitivities_and_ambient(nca18650: Cell, profile: Profile, profile_csv: Path, tmp_path: Path) -> None:
+    out = tmp_path / "all.h5"
+    result = invoke("simulate", "nca18650", str(profile_csv), "--soc0", "0.4", "--sens", "all", "--ambient", "10",
+                    "-o", str(out))
+    assert result.exit_code == 0, result.output
+    cols, _ = read_h5(out)
+    assert [c for c in cols if c.startswith("dV/d")] and all(f"dV/d{n} / V" in cols for n in parameters.NAMES)
+    res = battlab.simulate(nca18650, profile, soc0=0.4, ambient=283.15, sensitivities=list(parameters.NAMES))
+    check_against_api(cols, res, ambient_degC=10.0)
+
+
+def test_early_end_is_reported_and_written(nca18650: Cell, tmp_path: Path) -> None:
+    prof = Profile.constant(-2.0 * ONE_C, 900.0, 1.0).to_csv(tmp_path / "dis.csv")
+    out = tmp_path / "dis.bdf.csv"
+    result = invoke("simulate", "nca18650", str(prof), "--soc0", "0.3", "-o", str(out))
+    assert result.exit_code == 0, result.output
+    assert "V < 2.5" in result.stderr
+    table = pd.read_csv(out)
+    assert 10 < len(table) < 901 and table["Voltage / V"].min() >= 2.5
+    assert json.loads((tmp_path / "dis.meta.json").read_text())["ended_by"] == "V < 2.5"
+
+
+def test_the_installed_command_runs(nca18650: Cell, profile: Profile, profile_csv: Path, tmp_path: Path) -> None:
+    """One real run of the ``battlab`` console script in a subprocess."""
+    exe = shutil.which("battlab")
+    assert exe is not None, "the battlab command is not installed (pip install -e .)"
+    out = tmp_path / "sub.bdf.csv"
+    proc = subprocess.run([exe, "simulate", "nca18650", str(profile_csv), "--soc0", "0.5", "--sens", "R_s_n",
+                           "-o", str(out)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    table = pd.read_csv(out)
+    res = battlab.simulate(nca18650, profile, soc0=0.5, sensitivities=["R_s_n"])
+    check_against_api({c: table[c].to_numpy() for c in table.columns}, res)
+
+
+# --- bad input ----------------------------------------------------------------------------------------------------
+def bad_bpx(path: Path, nmc: Path) -> Path:
+    data = json.loads(nmc.read_text())
+    data["Parameterisation"]["Positive electrode"]["Porosity"] = "lots"
+    path.write_text(json.dumps(data))
+    return path
+
+
+BAD = {
+    # label: (arguments with {csv} / {nan} / {nocol} / {bpx} placeholders, fragment expected on stderr)
+    "unknown cell": (["nca99999", "{csv}"], "nca99999"),
+    "missing profile": (["nca18650", "{missing}"], "no such profile file"),
+    "NaN in profile": (["nca18650", "{nan}"], "NaN"),
+    "missing column": (["nca18650", "{nocol}"], "Current / A"),
+    "soc0 above 1": (["nca18650", "{csv}", "--soc0", "1.5"], "soc0"),
+    "unknown sensitivity": (["nca18650", "{csv}", "--sens", "R_s_n,R_s_x"], "R_s_x"),
+    "output suffix": (["nca18650", "{csv}", "-o", "{out_txt}"], ".bdf.csv"),
+    "ambient out of range": (["nca18650", "{csv}", "--ambient", "200"], "ambient"),
+    "invalid BPX": (["{bpx}", "{csv}"], "Porosity"),
+}
+
+
+@pytest.fixture
+def bad_files(profile_csv: Path, tmp_path: Path, nmc_bpx: Path) -> dict[str, str]:
+    nan = tmp_path / "nan.csv"
+    nan.write_text("Test Time / s,Current / A\n0,1\n1,nan\n2,0\n")
+    nocol = tmp_path / "nocol.csv"
+    nocol.write_text("Test Time / s,Amps\n0,1\n1,1\n")
+    return {"csv": str(profile_csv), "missing": str(tmp_path / "nope.csv"), "nan": str(nan), "nocol": str(nocol),
+            "bpx": str(bad_bpx(tmp_path / "bad_cell.json", nmc_bpx)), "out_txt": str(tmp_path / "out.txt")}
+
+
+def assert_one_line_error(code: int, stdout: str, stderr: str, fragment: str) -> None:
+    assert code == 2, (code, stdout, stderr)
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1, f"expected one line on stderr, got {stderr!r}"
+    assert "Traceback" not in stderr + stdout
+    assert fragment in lines[0], lines[0]
+
+
+@pytest.mark.parametrize("label", list(BAD))
+def test_bad_input_is_one_line_and_exit_2(label: str, bad_files: dict[str, str], tmp_path: Path) -> None:
+    args, fragment = BAD[label]
+    args = [a.format(**bad_files) for a in args]
+    if "-o" not in args:
+        args += ["-o", str(tmp_path / "out.bdf.csv")]
+    result = CliRunner().invoke(main, ["simulate", *args])
+    assert not isinstance(result.exception, Exception) or isinstance(result.exception, SystemExit), result.exception
+    assert_one_line_error(result.exit_code, result.stdout, result.stderr, fragment)
+    assert not (tmp_path / "out.bdf.csv").exists()
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "click's usage errors (a non-number for --soc0, a missing argument) print 'Usage: ...', a hint and a blank line "
+    "before 'Error: ...': four lines, not one (battlab/cli/__init__.py handles only InputError and OSError)"))
+@pytest.mark.parametrize("args", [["nca18650", "{csv}", "--soc0", "half"], ["nca18650"]],
+                         ids=["soc0 text", "no profile"])
+def test_usage_errors_are_one_line(args: list[str], bad_files: dict[str, str], tmp_path: Path) -> None:
+    args = [a.format(**bad_files) for a in args] + ["-o", str(tmp_path / "out.bdf.csv")]
+    result = CliRunner().invoke(main, ["simulate", *args])
+    assert_one_line_error(result.exit_code, result.stdout, result.stderr, "Error")
+
+
+def test_bad_input_through_the_installed_command(bad_files: dict[str, str], tmp_path: Path) -> None:
+    exe = shutil.which("battlab")
+    assert exe is not None
+    proc = subprocess.run([exe, "simulate", "nca18650", bad_files["nan"], "-o", str(tmp_path / "x.h5")],
+                          capture_output=True, text=True, timeout=300)
+    assert_one_line_error(proc.returncode, proc.stdout, proc.stderr, "nan.csv")
