@@ -1,0 +1,317 @@
+"""Dynamic identification: weighted least squares (eq. 41, squared) by Levenberg–Marquardt-type iterations
+(eqs. 42–43) with the model's exact sensitivities as the Jacobian, in normalised coordinates θ̄ ∈ [0, 1].
+
+The residual of experiment i at sample k is r = (y_i(k) − ŷ_i(k; θ̄)) / √Q_i (W = Q⁻¹); scipy's
+``least_squares`` (trust-region reflective, bounds [0, 1], Jacobian scaling as eq. 42's diag term) drives the
+iteration; the Jacobian is ours: −dV/dθ̄ / √Q from the forward sensitivities. A simulation that stops early at a
+voltage limit holds its last voltage for the missing samples (their Jacobian rows are zero), so a bad trial
+point costs much instead of failing.
+
+Group-wise and cumulative (DESIGN.md): stage k fits the parameters of groups 1..k on all data of stages
+1..k, starting where stage k − 1 ended; the final intervals are the last stage's.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from battlab import parameters
+from battlab.cell import Cell
+from battlab.identify import statistics
+from battlab.identify.forward import ForwardModel
+from battlab.noise import NoiseModel
+from protocols.errors import InputError
+from protocols.profile import Profile
+
+#: Voltage quantisation of the tester [V]; its variance Δ²/12 is added to the noise model's Q.
+QUANTUM = 1e-4
+
+#: The paper's Table 9 groups (the design module's groups replace them when a plan gives its own).
+TABLE9_GROUPS: tuple[tuple[str, ...], ...] = (
+    ("R_s_n", "R_s_p"),
+    ("D_s_n", "D_s_p", "eps_e_n", "kappa_scale", "D_e_scale", "dlnf_scale"),
+    ("R_f_n", "k_n", "eps_e_p", "c_e0", "R_f_p"),
+    ("sigma_n", "sigma_p", "eps_e_s", "k_p", "t_plus"),
+)
+
+
+@dataclass(frozen=True, eq=False)
+class Experiment:
+    """One identification (or validation) experiment: the applied profile and the measured voltage.
+
+    ``voltage`` [V] at ``profile.t``; ``variance`` Q_i [V²] (scalar or per sample); start from rest at
+    ``soc0``; ``ambient`` and ``T0`` [K]; ``mask`` selects the samples that enter the fit (default all).
+    """
+
+    name: str
+    profile: Profile
+    voltage: np.ndarray
+    soc0: float
+    variance: float | np.ndarray
+    ambient: float = 298.15
+    T0: float | None = None
+    mask: np.ndarray | None = None
+    truth: np.ndarray | None = None  # noise-free voltage, when known (virtual lab)
+
+    def __post_init__(self) -> None:
+        v = np.asarray(self.voltage, float).reshape(-1)
+        if v.size != self.profile.t.size:
+            raise InputError(f"experiment {self.name}: {v.size} voltages for {self.profile.t.size} samples")
+        if not np.isfinite(v).all():
+            raise InputError(f"experiment {self.name}: voltage has NaN")
+        q = np.broadcast_to(np.asarray(self.variance, float), v.shape)
+        if not (np.isfinite(q).all() and (q > 0).all()):
+            raise InputError(f"experiment {self.name}: the variance Q must be positive and finite")
+        object.__setattr__(self, "voltage", v)
+        object.__setattr__(self, "variance", q)
+        m = np.ones(v.size, bool) if self.mask is None else np.asarray(self.mask, bool).reshape(-1)
+        object.__setattr__(self, "mask", m)
+
+    @property
+    def hours(self) -> float:
+        return self.profile.duration / 3600.0
+
+
+def variance_of(profile: Profile, noise: NoiseModel | None = None, quantum: float = QUANTUM) -> float:
+    """Q [V²] of a profile: the noise model's q̂² (eqs. 37–40) plus quantisation Δ²/12."""
+    return (noise or NoiseModel()).variance(profile) + quantum**2 / 12.0
+
+
+@dataclass(frozen=True)
+class Options:
+    """Stopping rule and bound handling (the same for the OED and the conventional fits)."""
+
+    max_nfev: int = 40
+    ftol: float = 1e-10
+    xtol: float = 1e-8
+    gtol: float = 1e-8
+    bound_tol: float = 1e-3  # θ̄ this close to 0 or 1 counts as at the bound
+    rcond: float = statistics.RCOND
+
+
+@dataclass(frozen=True)
+class Convergence:
+    """How the iteration ended."""
+
+    converged: bool
+    reason: str
+    iterations: int  # function evaluations (one simulation of all experiments each)
+    jacobian_evaluations: int
+    cost_start: float  # ½ Σ r² at the start
+    cost: float  # ½ Σ r² at the end
+    gradient_norm: float  # ‖Jᵀr‖∞ projected on the bounds (scipy's first-order optimality)
+    seconds: float
+
+
+@dataclass(frozen=True, eq=False)
+class FitResult:
+    """A fitted cell, its statistics, convergence report and error CDF data (one stage)."""
+
+    cell: Cell
+    names: tuple[str, ...]
+    theta_bar: np.ndarray
+    statistics: statistics.Statistics
+    convergence: Convergence
+    rmse_mV: dict[str, float]
+    rmse_before_mV: dict[str, float]
+    errors_before_mV: np.ndarray  # |y − ŷ| at the start point, all samples used
+    errors_after_mV: np.ndarray
+    experiments: tuple[str, ...] = ()
+    stage: int = 1
+    extra: dict[str, object] = field(default_factory=dict)
+
+    def report(self) -> dict[str, object]:
+        """A JSON-able fit report (parameters, intervals, convergence, RMSEs)."""
+        st = self.statistics
+        c = self.convergence
+        return {
+            "stage": self.stage,
+            "parameters": list(self.names),
+            "experiments": list(self.experiments),
+            "converged": c.converged,
+            "reason": c.reason,
+            "iterations": c.iterations,
+            "cost_start": c.cost_start,
+            "cost": c.cost,
+            "gradient_norm": c.gradient_norm,
+            "seconds": c.seconds,
+            "statistics_valid": st.valid,
+            "statistics_note": st.reason,
+            "s2": st.s2,
+            "condition": st.condition,
+            "rmse_mV": self.rmse_mV,
+            "rmse_before_mV": self.rmse_before_mV,
+            "estimates": {
+                e.name: {"value": e.value, "ci95": list(e.ci95) if e.ci95 else None,
+                         "ci95_scaled": list(e.ci95_scaled) if e.ci95_scaled else None,
+                         "sigma": e.sigma, "at_bound": e.at_bound}
+                for e in st.estimates
+            },
+        }
+
+
+class _Problem:
+    """Residuals and Jacobian of eq. 41 for a set of experiments and fitted names, cached per θ̄."""
+
+    def __init__(self, fm: ForwardModel, experiments: Sequence[Experiment], names: Sequence[str],
+                 theta_full: np.ndarray) -> None:
+        self.fm = fm
+        self.exps = list(experiments)
+        self.names = tuple(names)
+        self.idx = [parameters.NAMES.index(n) for n in self.names]
+        self.base = np.asarray(theta_full, float).copy()
+        self._key: bytes | None = None
+        self._val: tuple[np.ndarray, np.ndarray, list[np.ndarray]] | None = None
+        self.n_sim = 0
+
+    def full(self, x: np.ndarray) -> np.ndarray:
+        th = self.base.copy()
+        th[self.idx] = x
+        return th
+
+    def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+        key = np.asarray(x, float).tobytes()
+        if key == self._key and self._val is not None:
+            return self._val
+        th = self.full(x)
+        rs, js, preds = [], [], []
+        for e in self.exps:
+            out = self.fm.run(th, e.profile, e.soc0, ambient=e.ambient, T0=e.T0, sensitivities=self.names)
+            n = e.voltage.size
+            pred = np.empty(n)
+            S = np.zeros((n, len(self.names)))
+            k = out.voltage.size
+            if k:
+                pred[:k] = out.voltage
+                S[:k] = out.sensitivities
+                pred[k:] = out.voltage[-1]
+            else:
+                pred[:] = e.voltage[0] + 1.0  # nothing simulated: a large but finite residual
+            w = 1.0 / np.sqrt(e.variance)
+            m = e.mask
+            rs.append(((pred - e.voltage) * w)[m])
+            js.append((S * w[:, None])[m])
+            preds.append(pred)
+        self.n_sim += 1
+        self._key, self._val = key, (np.concatenate(rs), np.vstack(js), preds)
+        return self._val
+
+
+def _rmse(exps: Sequence[Experiment], preds: list[np.ndarray]) -> dict[str, float]:
+    return {e.name: float(1e3 * np.sqrt(np.mean((p - e.voltage)[e.mask] ** 2)))
+            for e, p in zip(exps, preds, strict=True)}
+
+
+def _abs_errors(exps: Sequence[Experiment], preds: list[np.ndarray]) -> np.ndarray:
+    return np.concatenate([1e3 * np.abs(p - e.voltage)[e.mask] for e, p in zip(exps, preds, strict=True)])
+
+
+def fit(
+    cell: Cell,
+    experiments: Sequence[Experiment],
+    names: Sequence[str],
+    *,
+    options: Options | None = None,
+    forward: ForwardModel | None = None,
+    start: Cell | None = None,
+    stage: int = 1,
+) -> FitResult:
+    """Fit the dynamic parameters ``names`` of ``cell`` to ``experiments`` (eq. 41 by LM, eqs. 42–43).
+
+    ``start`` (default ``cell``) gives the start point; ``forward`` may be shared between fits of cells that
+    differ only in dynamic values (one compiled model). A fit that stops without meeting the stopping rule
+    returns its best point with ``convergence.converged = False`` and the reason.
+    """
+    names = parameters.check_names(list(names))
+    if not names:
+        raise InputError("fit: no parameters to fit")
+    if not experiments:
+        raise InputError("fit: no experiments")
+    opt = options or Options()
+    fm = forward or ForwardModel(cell)
+    start = start or cell
+    theta_full = np.array([start.normalised(n) for n in parameters.NAMES])
+    prob = _Problem(fm, experiments, names, theta_full)
+    x0 = np.clip(theta_full[prob.idx], 1e-6, 1 - 1e-6)
+    t0 = time.perf_counter()
+    r0, _, preds0 = prob.evaluate(x0)
+    cost0 = 0.5 * float(r0 @ r0)
+    err = None
+    try:
+        sol = least_squares(
+            lambda x: prob.evaluate(x)[0], x0, jac=lambda x: prob.evaluate(x)[1], bounds=(0.0, 1.0),
+            method="trf", x_scale="jac", ftol=opt.ftol, xtol=opt.xtol, gtol=opt.gtol, max_nfev=opt.max_nfev,
+        )
+        x, status, msg, nfev, njev, opt_norm = sol.x, sol.status, sol.message, sol.nfev, sol.njev, sol.optimality
+    except (np.linalg.LinAlgError, ValueError) as exc:  # keep the best point seen
+        err = f"optimiser failed: {exc}"
+        x, status, msg, nfev, njev, opt_norm = x0, -1, err, prob.n_sim, 0, float("nan")
+    r, J, preds = prob.evaluate(x)
+    cost = 0.5 * float(r @ r)
+    if cost > cost0:  # never return a worse point than the start
+        x, (r, J, preds), cost = x0, prob.evaluate(x0), cost0
+    converged = status > 0
+    reasons = {
+        -1: "failed", 0: "maximum number of iterations reached", 1: "gradient tolerance (gtol) met",
+        2: "cost change below ftol", 3: "step below xtol", 4: "ftol and xtol both met",
+    }
+    reason = f"{reasons.get(status, 'unknown')}: {msg}" if status > 0 else (err or f"not converged: {reasons[0]}")
+    seconds = time.perf_counter() - t0
+    at_bound = [("lower" if v < opt.bound_tol else "upper" if v > 1 - opt.bound_tol else None) for v in x]
+    st = statistics.compute(names, x, J, -r, at_bound, rcond=opt.rcond)
+    th = prob.full(x)
+    fitted = start.with_normalised(**{n: float(v) for n, v in zip(names, x, strict=True)})
+    conv = Convergence(bool(converged), reason, int(nfev), int(njev or 0), cost0, cost, float(opt_norm), seconds)
+    return FitResult(
+        fitted, names, th[prob.idx], st, conv, _rmse(experiments, preds), _rmse(experiments, preds0),
+        _abs_errors(experiments, preds0), _abs_errors(experiments, preds), tuple(e.name for e in experiments), stage,
+    )
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage of a group-wise design: the group's parameters and the experiments designed for it."""
+
+    names: tuple[str, ...]
+    experiments: tuple[Experiment, ...]
+
+
+def fit_groupwise(
+    cell: Cell,
+    stages: Sequence[Stage],
+    *,
+    options: Options | None = None,
+    forward: ForwardModel | None = None,
+    progress: object | None = None,
+) -> list[FitResult]:
+    """Cumulative group-wise fit: stage k fits groups 1..k on the experiments of stages 1..k.
+
+    ``progress``: optional callable ``(stage, FitResult)`` called after each stage.
+    """
+    fm = forward or ForwardModel(cell)
+    current = cell
+    names: list[str] = []
+    exps: list[Experiment] = []
+    results: list[FitResult] = []
+    for k, stg in enumerate(stages, start=1):
+        names += [n for n in stg.names if n not in names]
+        exps += list(stg.experiments)
+        res = fit(cell, exps, names, options=options, forward=fm, start=current, stage=k)
+        results.append(res)
+        current = res.cell
+        if callable(progress):
+            progress(k, res)
+    return results
+
+
+def predict(forward: ForwardModel, cell: Cell, exp: Experiment) -> np.ndarray:
+    """The voltage of ``cell`` under an experiment, padded with its last value if the simulation stops early."""
+    out = forward.run(forward.theta_of(cell), exp.profile, exp.soc0, ambient=exp.ambient, T0=exp.T0)
+    pred = np.full(exp.voltage.size, out.voltage[-1] if out.voltage.size else np.nan)
+    pred[: out.voltage.size] = out.voltage
+    return pred

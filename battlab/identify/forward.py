@@ -1,0 +1,101 @@
+"""The forward model as the fit sees it: voltage and exact sensitivities dV/dθ̄ at a vector of normalised values.
+
+``battlab.simulate`` takes a :class:`~battlab.Cell`; a fit changes θ̄ every iteration, and a new cell costs a
+model build (≈0.5 s) although the compiled stepper takes θ̄ as an input. :class:`ForwardModel` keeps the stepper
+of one base cell and passes θ̄ straight to it (same solver, same limits, same sign conversion as
+``battlab.simulate``; a test checks they agree). Without a C compiler it falls back to ``battlab.simulate``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from battlab import parameters
+from battlab.cell import Cell
+from battlab.simulation import simulate, to_model_current
+from protocols.errors import InputError
+from protocols.profile import Profile
+
+
+@dataclass(frozen=True)
+class Output:
+    """Voltage [V] at the profile's samples (may end early, see ``ended_by``) and dV/dθ̄ (n, n_sens)."""
+
+    voltage: np.ndarray
+    sensitivities: np.ndarray | None
+    ended_by: str | None
+    T_surface: np.ndarray | None = None
+
+
+class ForwardModel:
+    """Simulate ``cell`` with its 18 dynamic values replaced by a θ̄ vector (in :data:`parameters.NAMES` order)."""
+
+    def __init__(self, cell: Cell, *, isothermal: bool = False) -> None:
+        self.cell = cell
+        self.isothermal = isothermal
+        self.theta0 = np.array([cell.normalised(n) for n in parameters.NAMES])
+        self._stepper = None
+        self._native_ok: bool | None = None
+
+    def cell_at(self, theta_bar: np.ndarray) -> Cell:
+        """The cell with all 18 dynamic parameters set from ``theta_bar``."""
+        return self.cell.with_normalised(**dict(zip(parameters.NAMES, map(float, theta_bar), strict=True)))
+
+    def theta_of(self, cell: Cell) -> np.ndarray:
+        """θ̄ of ``cell``, which must differ from the base cell in dynamic values only."""
+        if cell is not self.cell:
+            fixed = set(self.cell.values) - set(parameters.NAMES)
+            diff = sorted(k for k in fixed | (set(cell.values) - set(parameters.NAMES))
+                          if repr(cell.get(k)) != repr(self.cell.get(k)))
+            if diff:
+                raise InputError(
+                    f"cell {cell.name!r} differs from the model's base cell {self.cell.name!r} in non-dynamic "
+                    f"values {diff[:5]}: build a ForwardModel for it"
+                )
+        return np.array([cell.normalised(n) for n in parameters.NAMES])
+
+    def _native(self):  # -> NativeStepper | None
+        if self._native_ok is None:
+            from battlab.model import solver
+            from battlab.model.mesh import Mesh
+            from battlab.model.native import NativeUnavailable
+
+            try:
+                self._stepper = solver.native_stepper(self.cell, Mesh(), self.isothermal)
+                self._native_ok = True
+            except NativeUnavailable:
+                self._native_ok = False
+        return self._stepper if self._native_ok else None
+
+    def run(
+        self,
+        theta_bar: np.ndarray,
+        profile: Profile,
+        soc0: float,
+        *,
+        ambient: float = 298.15,
+        T0: float | None = None,
+        sensitivities: Sequence[str] = (),
+    ) -> Output:
+        """Voltage and dV/dθ̄ for the named parameters under ``profile`` from rest at ``soc0``."""
+        names = parameters.check_names(list(sensitivities))
+        theta_bar = np.asarray(theta_bar, float)
+        stepper = self._native()
+        if stepper is None:
+            res = simulate(self.cell_at(theta_bar), profile, soc0=soc0, ambient=ambient,
+                           isothermal=self.isothermal, sensitivities=names, T0=T0)
+            return Output(res.voltage, res.sensitivities, res.ended_by, res.T_surface)
+        from battlab.model import solver
+
+        cell = self.cell
+        limits = {"V_min": float(cell["V_min"]), "V_max": float(cell["V_max"]), "T_max": float(cell["T_max"])}
+        sel = [parameters.NAMES.index(n) for n in names]
+        t = profile.t - profile.t[0]
+        traj = solver.run_native(
+            stepper, t, to_model_current(profile.current), float(ambient), theta_bar, float(soc0),
+            float(ambient if T0 is None else T0), sel, solver.Settings(), limits,
+        )
+        return Output(traj.voltage, traj.dV if names else None, traj.ended_by, traj.T2)

@@ -1,0 +1,76 @@
+"""Battery Data Format CSV (``.bdf.csv``): import and export, with metadata in a ``<name>.meta.json`` sidecar.
+
+A BDF CSV is one header row of BDF column names (``Test Time / s``, ``Voltage / V``, ``Current / A`` required)
+and numbers; the reference package ``batterydf`` (``bdf.validate``) accepts what :func:`write_bdf_csv` writes.
+Metadata (cell, protocol, start SOC, …) cannot live in a strict BDF CSV, so it goes to the sidecar, as
+:mod:`battlab.io.results` does for simulation output.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from battlab.io.data import REQUIRED, LoggedData
+from protocols.errors import InputError
+
+
+def sidecar(path: str | Path) -> Path:
+    """The metadata sidecar of a CSV: ``run.bdf.csv`` → ``run.meta.json``."""
+    path = Path(path)
+    return path.with_name(path.name.removesuffix(".csv").removesuffix(".bdf") + ".meta.json")
+
+
+def write_bdf_csv(data: LoggedData, path: str | Path) -> Path:
+    """Write ``data`` as BDF CSV (required columns first) plus its metadata sidecar."""
+    path = Path(path)
+    if not path.name.endswith(".csv"):
+        raise InputError(f"{path}: a BDF CSV file name ends in .bdf.csv (or .csv)")
+    names = [*REQUIRED, *(c for c in data.columns if c not in REQUIRED)]
+    for n in names:
+        if "," in n or '"' in n:
+            raise InputError(f"{path}: column name {n!r} contains a comma or quote")
+    block = np.column_stack([data.columns[n] for n in names])
+    np.savetxt(path, block, delimiter=",", header=",".join(names), comments="", fmt="%.10g")
+    sidecar(path).write_text(json.dumps(dict(data.meta), indent=2, sort_keys=True, default=str))
+    return path
+
+
+def read_bdf_csv(path: str | Path) -> LoggedData:
+    """Read a BDF CSV (and its sidecar if present); a missing column or a non-number names the line."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    with path.open(encoding="utf-8") as fh:
+        header = [h.strip() for h in fh.readline().strip().split(",")]
+    if not header or header == [""]:
+        raise InputError(f"{path}: file is empty")
+    missing = [c for c in REQUIRED if c not in header]
+    if missing:
+        raise InputError(f"{path}: missing BDF column(s) {missing}; the header has {header}")
+    import pandas as pd
+
+    try:
+        df = pd.read_csv(path, sep=",", skip_blank_lines=True)
+    except (ValueError, pd.errors.ParserError) as exc:
+        raise InputError(f"{path}: not a valid CSV table ({exc})") from None
+    cols: dict[str, np.ndarray] = {}
+    for name in df.columns:
+        values = pd.to_numeric(df[name], errors="coerce").to_numpy(dtype=float)
+        text = df[name].astype(str).str.strip()
+        bad = np.isnan(values) & ~text.str.lower().isin(["nan", "", "none"]).to_numpy()
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise InputError(f"{path}, line {k + 2}: column {name!r}: expected a number, got {df[name].iloc[k]!r}")
+        cols[str(name).strip()] = values
+    meta = {}
+    side = sidecar(path)
+    if side.is_file():
+        try:
+            meta = json.loads(side.read_text())
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{side}: not valid JSON ({exc})") from None
+    name = path.name.removesuffix(".csv").removesuffix(".bdf")
+    return LoggedData(name, cols, meta, str(path))

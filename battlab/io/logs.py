@@ -1,0 +1,233 @@
+"""Our run log: one HDF5 file per run, appendable in chunks and readable while it is written (h5py SWMR).
+
+Layout (format ``battlab-run-log``, version 1)::
+
+    /            attrs: format, version, columns (JSON list of BDF names), units (JSON list),
+                        meta (JSON: cell, protocol/plan, instruments and identities, software, hashes, …),
+                        created (ISO 8601 UTC); after a clean close also final (JSON) and rows
+    /data        float64 (n_rows, n_columns), chunked, unlimited rows; attrs columns, units (the same lists)
+
+One 2-D dataset (not one per column) makes every append atomic for a reader: it never sees columns of different
+lengths. The writer switches to SWMR mode after creating the file, so readers (``read_log``) may open it at any
+time; rows appended before the last :meth:`LogWriter.flush` survive a killed writer.
+
+The lab runner writes through::
+
+    w = open_log("run.h5", ["Test Time / s", "Voltage / V", "Current / A", ...], run_meta(...))
+    w.append(rows)          # (n, n_columns) array, a sequence of rows, or {column: values}
+    w.flush()               # make appended rows durable and visible to readers
+    w.close(final_meta)     # optional final metadata (e.g. {"ended_by": None, "status": "completed"})
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from battlab.io.data import REQUIRED, LoggedData
+from protocols.errors import InputError
+
+FORMAT = "battlab-run-log"
+VERSION = 1
+
+
+def unit_of(column: str) -> str:
+    """The unit part of a BDF column name ('Voltage / V' → 'V'); '' when there is none."""
+    return column.rsplit(" / ", 1)[1].strip() if " / " in column else ""
+
+
+def _json(value: Any) -> str:
+    return json.dumps(value, default=_json_default, sort_keys=True)
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"metadata value of type {type(obj).__name__} is not JSON-serialisable")
+
+
+def run_meta(
+    *,
+    cell: Any = None,
+    protocol: Any = None,
+    plan: Any = None,
+    instruments: Mapping[str, Any] | None = None,
+    **extra: Any,
+) -> dict[str, Any]:
+    """Standard run metadata: cell name and parameter hash, protocol/plan (as data), instruments, software.
+
+    ``cell``: a :class:`battlab.Cell` (name and hash are stored) or a name; ``protocol``/``plan``: a
+    :class:`protocols.Protocol` (stored via ``to_dict``), a mapping or a path; ``instruments``: role →
+    identity (e.g. ``{"cycler": {"url": ..., "idn": "..."}}``).
+    """
+    from battlab import __version__
+
+    meta: dict[str, Any] = {"software": {"battlab": __version__}}
+    if cell is not None:
+        if hasattr(cell, "hash"):
+            meta["cell"] = cell.name
+            meta["parameter_hashes"] = {"cell": cell.hash()}
+        else:
+            meta["cell"] = str(cell)
+    for key, value in (("protocol", protocol), ("plan", plan)):
+        if value is not None:
+            meta[key] = value.to_dict() if hasattr(value, "to_dict") else value
+    if instruments is not None:
+        meta["instruments"] = dict(instruments)
+    meta.update(extra)
+    return meta
+
+
+class LogWriter:
+    """Appends rows to a run log (SWMR). Use :func:`open_log` to create one; also a context manager."""
+
+    def __init__(self, path: Path, columns: Sequence[str], meta: Mapping[str, Any], chunk_rows: int) -> None:
+        import h5py
+
+        self.path = path
+        self.columns = tuple(columns)
+        self._index = {c: k for k, c in enumerate(self.columns)}
+        self._file = h5py.File(path, "w", libver="latest")
+        units = [unit_of(c) for c in self.columns]
+        f = self._file
+        f.attrs["format"] = FORMAT
+        f.attrs["version"] = VERSION
+        f.attrs["columns"] = _json(list(self.columns))
+        f.attrs["units"] = _json(units)
+        f.attrs["meta"] = _json(dict(meta))
+        f.attrs["created"] = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+        ds = f.create_dataset(
+            "data", shape=(0, len(self.columns)), maxshape=(None, len(self.columns)), dtype="f8",
+            chunks=(max(int(chunk_rows), 1), len(self.columns)),
+        )
+        ds.attrs["columns"] = _json(list(self.columns))
+        ds.attrs["units"] = _json(units)
+        self._ds = ds
+        f.swmr_mode = True
+        self._closed = False
+
+    @property
+    def n_rows(self) -> int:
+        """Rows appended so far."""
+        return int(self._ds.shape[0])
+
+    def append(self, rows: Any) -> None:
+        """Append rows: an (n, n_columns) array, a sequence of rows, or a mapping column → values (all columns)."""
+        if self._closed:
+            raise InputError(f"{self.path}: log is closed")
+        if isinstance(rows, Mapping):
+            unknown = [c for c in rows if c not in self._index]
+            missing = [c for c in self.columns if c not in rows]
+            if unknown or missing:
+                raise InputError(f"{self.path}: append: unknown column(s) {unknown}, missing column(s) {missing}")
+            block = np.column_stack([np.atleast_1d(np.asarray(rows[c], float)) for c in self.columns])
+        else:
+            block = np.asarray(rows, dtype=float)
+            if block.ndim == 1:
+                block = block.reshape(1, -1)
+        if block.ndim != 2 or block.shape[1] != len(self.columns):
+            raise InputError(
+                f"{self.path}: append: expected rows of {len(self.columns)} values ({', '.join(self.columns)}), "
+                f"got shape {block.shape}"
+            )
+        if block.shape[0] == 0:
+            return
+        n = self.n_rows
+        self._ds.resize((n + block.shape[0], len(self.columns)))
+        self._ds[n:] = block
+
+    def flush(self) -> None:
+        """Make the appended rows durable and visible to SWMR readers."""
+        if not self._closed:
+            self._ds.flush()
+            self._file.flush()
+
+    def close(self, final_meta: Mapping[str, Any] | None = None) -> None:
+        """Flush and close; ``final_meta`` (JSON-able) is stored as the ``final`` attribute."""
+        if self._closed:
+            return
+        self.flush()
+        n = self.n_rows
+        self._file.close()
+        self._closed = True
+        import h5py
+
+        with h5py.File(self.path, "r+", libver="latest") as f:  # attributes cannot be added in SWMR mode
+            f.attrs["rows"] = n
+            if final_meta is not None:
+                f.attrs["final"] = _json(dict(final_meta))
+
+    def __enter__(self) -> LogWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close({"status": "error"} if exc[0] is not None else None)
+
+
+def open_log(
+    path: str | Path, columns: Sequence[str], meta: Mapping[str, Any], *, chunk_rows: int = 1024
+) -> LogWriter:
+    """Create a run log at ``path`` with BDF ``columns`` (must include time, voltage, current) and ``meta``.
+
+    An existing file is an error (logged data is never overwritten).
+    """
+    path = Path(path)
+    cols = list(columns)
+    missing = [c for c in REQUIRED if c not in cols]
+    if missing:
+        raise InputError(f"{path}: a run log needs the columns {list(REQUIRED)}; missing {missing}")
+    dup = sorted({c for c in cols if cols.count(c) > 1})
+    if dup:
+        raise InputError(f"{path}: column(s) {dup} given more than once")
+    if path.exists():
+        raise InputError(f"{path}: already exists; a run log is never overwritten")
+    try:
+        _json(dict(meta))
+    except TypeError as exc:
+        raise InputError(f"{path}: metadata: {exc}") from None
+    return LogWriter(path, cols, meta, chunk_rows)
+
+
+def read_log(path: str | Path) -> LoggedData:
+    """Read a run log (also one still being written, or left by a killed writer) as :class:`LoggedData`.
+
+    ``meta`` holds the run metadata plus ``final`` (if closed cleanly), ``created`` and ``complete`` (bool).
+    """
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such run log")
+    try:
+        f = h5py.File(path, "r", libver="latest", swmr=True)
+    except OSError as exc:
+        raise InputError(f"{path}: not a readable HDF5 file ({exc})") from None
+    with f:
+        if f.attrs.get("format") != FORMAT:
+            raise InputError(f"{path}: not a battlab run log (attribute format = {f.attrs.get('format')!r})")
+        if "data" not in f:
+            raise InputError(f"{path}: run log has no /data dataset")
+        ds = f["data"]
+        ds.refresh()
+        block = ds[...]
+        columns = json.loads(ds.attrs["columns"])
+        meta = json.loads(f.attrs.get("meta", "{}"))
+        final = f.attrs.get("final")
+        meta["created"] = str(f.attrs.get("created", ""))
+        meta["complete"] = "rows" in f.attrs
+        if final is not None:
+            meta["final"] = json.loads(final)
+    cols = {c: block[:, k] for k, c in enumerate(columns)}
+    return LoggedData(path.stem, cols, meta, str(path))
+
+
+__all__ = ["FORMAT", "VERSION", "LogWriter", "open_log", "read_log", "run_meta", "unit_of"]
