@@ -1,0 +1,110 @@
+"""battlab against PyBaMM's DFN (the reference implementation) on the BPX NMC pouch cell, isothermal, without film
+or contact resistance (BPX has none).
+
+PyBaMM runs at a fine mesh with tight IDAKLU tolerances. Its current is positive on discharge (battlab's is
+positive on charge). Piecewise-constant currents reach PyBaMM exactly: a sum of Heaviside steps H(t − t_k), which
+PyBaMM turns into integration stops with re-initialisation at every t_k. PyBaMM stores the left limit at a stop,
+battlab reports right limits at the samples, so PyBaMM is read at t_k + 1 µs.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+import battlab
+from battlab import Cell
+from battlab.model.mesh import Mesh
+from protocols import Profile
+
+if os.environ.get("CI"):
+    import pybamm  # a test dependency: in CI its absence is a failure, not a skip
+else:
+    pybamm = pytest.importorskip("pybamm")
+
+pytestmark = pytest.mark.slow
+
+FINE = {k: 60 for k in ("x_n", "x_s", "x_p", "r_n", "r_p")}
+RIGHT = 1e-6  # s after a current step: PyBaMM's right limit
+
+
+def balanced_sum(terms: list[Any]) -> Any:
+    """Sum of PyBaMM symbols as a balanced tree (a long chain overflows PyBaMM's recursive tree walks)."""
+    while len(terms) > 1:
+        terms = [terms[i] + terms[i + 1] if i + 1 < len(terms) else terms[i] for i in range(0, len(terms), 2)]
+    return terms[0]
+
+
+def pybamm_current(prof: Profile) -> Any:
+    """The profile's zero-order-hold current in PyBaMM's sign (positive = discharge), exactly:
+    I_0 + Σ ΔI_k H(t − t_k)."""
+    i_dis = -prof.current
+    terms = [pybamm.Scalar(float(i_dis[0]))]
+    for dI, tk in zip(np.diff(i_dis[:-1]), prof.t[1:-1], strict=True):
+        if dI != 0.0:
+            terms.append(pybamm.Scalar(float(dI)) * (pybamm.t >= pybamm.Scalar(float(tk))))
+    return balanced_sum(terms)
+
+
+def run_pybamm(path: Path, prof: Profile, soc0: float) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+    """PyBaMM's DFN (isothermal) at 60 points per domain, rtol 1e-8, atol 1e-10: (times, voltage, temperatures)
+    at the profile's samples (right limits) up to its end or its voltage cut-off."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pv = pybamm.ParameterValues.create_from_bpx(str(path), target_soc=soc0)
+    pv["Current function [A]"] = pybamm_current(prof)
+    sim = pybamm.Simulation(pybamm.lithium_ion.DFN(), parameter_values=pv, var_pts=FINE,
+                            solver=pybamm.IDAKLUSolver(rtol=1e-8, atol=1e-10))
+    t = prof.t - prof.t[0]
+    query = np.concatenate([[0.0], t[1:-1] + RIGHT, [t[-1]]])
+    sol = sim.solve([0.0, float(t[-1])], t_interp=query)
+    n = int(np.searchsorted(query, sol.t[-1], side="right"))
+    temps = {k: float(pv[f"{k} temperature [K]"]) for k in ("Ambient", "Initial")}
+    return t[:n], sol["Voltage [V]"](query[:n]), temps
+
+
+def rmse_mV(res: battlab.Result, t_ref: np.ndarray, v_ref: np.ndarray) -> tuple[float, int]:
+    t = res.t - res.t[0]
+    common, ib, ir = np.intersect1d(t, t_ref, return_indices=True)
+    return float(1e3 * np.sqrt(np.mean((res.voltage[ib] - v_ref[ir]) ** 2))), common.size
+
+
+def test_1c_discharge_to_cut_off(nmc_bpx: Path) -> None:
+    """1C from 100 % to the 2.7 V cut-off at battlab's converged mesh: voltage RMSE ≤ 1 mV, same end time."""
+    cell = Cell.from_bpx(nmc_bpx)
+    q = float(cell["Q_nom"])
+    prof = Profile.constant(-q, 4200.0, 1.0)
+    t_ref, v_ref, temps = run_pybamm(nmc_bpx, prof, 1.0)
+    assert t_ref[-1] < 4000.0  # PyBaMM stopped at its cut-off
+    res = battlab.simulate(cell, prof, soc0=1.0, isothermal=True, ambient=temps["Ambient"], T0=temps["Initial"],
+                           mesh=Mesh.converged())
+    assert res.ended_by == f"V < {float(cell['V_min']):g}"
+    rmse, n = rmse_mV(res, t_ref, v_ref)
+    assert n > 3500
+    assert rmse <= 1.0, f"voltage RMSE {rmse:.3f} mV against PyBaMM"
+    assert abs(res.t[-1] - t_ref[-1]) <= 2.0  # both stop at the same sample (± the knee's slope)
+    assert abs(res.voltage[0] - v_ref[0]) < 1e-3  # the instantaneous drop at t = 0
+
+
+def test_charge_and_discharge_pulses(nmc_bpx: Path) -> None:
+    """Discharge and charge pulses up to 3C from 60 %, 1 s samples, at battlab's default mesh: RMSE ≤ 1 mV, so the
+    sign conversion and the zero-order hold agree with PyBaMM in both directions."""
+    cell = Cell.from_bpx(nmc_bpx)
+    q = float(cell["Q_nom"])
+    steps = Profile.from_segments(np.array([30.0, 60.0, 30.0, 60.0, 30.0, 120.0, 60.0, 210.0]),
+                                  np.array([0.0, -2.0, 0.0, 1.0, -3.0, 0.0, 2.0, 0.0]) * q)
+    t = np.arange(0.0, 601.0)
+    prof = Profile(t, steps.value_at(t))
+    t_ref, v_ref, temps = run_pybamm(nmc_bpx, prof, 0.6)
+    assert t_ref.size == t.size
+    res = battlab.simulate(cell, prof, soc0=0.6, isothermal=True, ambient=temps["Ambient"], T0=temps["Initial"])
+    assert res.ended_by is None
+    rmse, _ = rmse_mV(res, t_ref, v_ref)
+    assert rmse <= 1.0, f"voltage RMSE {rmse:.3f} mV against PyBaMM"
+    charging = prof.current > 0
+    assert np.all(v_ref[charging] > float(cell.ocv(0.55)))  # PyBaMM too sees charge as charge
