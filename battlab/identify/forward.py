@@ -33,8 +33,9 @@ class Output:
 class ForwardModel:
     """Simulate ``cell`` with its 18 dynamic values replaced by a θ̄ vector (in :data:`parameters.NAMES` order)."""
 
-    def __init__(self, cell: Cell, *, isothermal: bool = False) -> None:
+    def __init__(self, cell: Cell, *, isothermal: bool = False, v_margin: float = 0.0) -> None:
         self.cell = cell
+        self.v_margin = float(v_margin)  # widen the voltage stop [V] (measured data may exceed the window)
         self.isothermal = isothermal
         self.theta0 = np.array([cell.normalised(n) for n in parameters.NAMES])
         self._stepper = None
@@ -85,13 +86,15 @@ class ForwardModel:
         theta_bar = np.asarray(theta_bar, float)
         stepper = self._native()
         if stepper is None:
+            lim = (float(self.cell["V_min"]) - self.v_margin, float(self.cell["V_max"]) + self.v_margin)
             res = simulate(self.cell_at(theta_bar), profile, soc0=soc0, ambient=ambient,
-                           isothermal=self.isothermal, sensitivities=names, T0=T0)
+                           isothermal=self.isothermal, sensitivities=names, T0=T0, v_limits=lim)
             return Output(res.voltage, res.sensitivities, res.ended_by, res.T_surface)
         from battlab.model import solver
 
         cell = self.cell
-        limits = {"V_min": float(cell["V_min"]), "V_max": float(cell["V_max"]), "T_max": float(cell["T_max"])}
+        m = self.v_margin
+        limits = {"V_min": float(cell["V_min"]) - m, "V_max": float(cell["V_max"]) + m, "T_max": float(cell["T_max"])}
         sel = [parameters.NAMES.index(n) for n in names]
         t = profile.t - profile.t[0]
         traj = solver.run_native(

@@ -1,0 +1,96 @@
+"""Logged data → fit experiments: split at gaps, resample to a uniform grid, start SOC, ambient, weights.
+
+* Segments: the data are cut where the time stamps jump by more than ``max_gap`` (the Panasonic HPPC file logs
+  only the pulses, not the discharges between them); each segment is one experiment.
+* Resampling to ``dt`` (default 1 s, the sampling of the Fisher information): the current is averaged over each
+  interval [t_k, t_k + dt) (charge-conserving, zero-order hold), the voltage is interpolated at t_k.
+* Start SOC: ``meta["soc0"]`` if logged; else from the first sample's voltage when the cell rests there
+  (rest voltage ↔ OCV of the cell; DESIGN.md), else an error. Later segments add the charge passed
+  (``Net Capacity / Ah`` if logged, else ∫I dt) divided by the cell's capacity.
+* Ambient: mean chamber temperature (or 25 °C); T0: the surface temperature at the segment's start.
+* Weights: Q from the noise model (eqs. 37–40) plus quantisation (:func:`battlab.identify.fit.variance_of`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from battlab.cell import Cell
+from battlab.identify.fit import Experiment, variance_of
+from battlab.io.data import NET_CAPACITY, SURFACE, LoggedData
+from battlab.noise import NoiseModel
+from protocols.errors import InputError
+from protocols.profile import Profile
+
+
+def segments(data: LoggedData, max_gap: float = 60.0) -> list[slice]:
+    """Index slices between time gaps longer than ``max_gap`` [s] (segments of < 10 samples are dropped)."""
+    gaps = np.flatnonzero(np.diff(data.t) > max_gap) + 1
+    edges = np.concatenate([[0], gaps, [len(data)]])
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b - a >= 10]
+
+
+def resample(t: np.ndarray, current: np.ndarray, voltage: np.ndarray, dt: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Uniform grid from t[0] every ``dt`` [s]: bin-averaged current (zero-order hold), interpolated voltage."""
+    if dt <= 0:
+        return t - t[0], current, voltage
+    n = int(np.floor((t[-1] - t[0]) / dt + 1e-9))
+    if n < 2:
+        raise InputError(f"a segment of {t[-1] - t[0]:.3g} s is too short to resample at {dt} s")
+    grid = t[0] + dt * np.arange(n + 1)
+    charge = np.concatenate([[0.0], np.cumsum(current[:-1] * np.diff(t))])  # A s at each sample (ZOH)
+
+    def q_at(x: np.ndarray) -> np.ndarray:
+        k = np.clip(np.searchsorted(t, x, side="right") - 1, 0, t.size - 1)
+        return charge[k] + current[k] * (x - t[k])
+
+    q = q_at(grid)
+    i = np.empty(grid.size)
+    i[:-1] = np.diff(q) / dt
+    i[-1] = i[-2]
+    return grid - grid[0], i, np.interp(grid, t, voltage)
+
+
+def experiments_from_data(
+    data: LoggedData,
+    cell: Cell,
+    *,
+    dt: float = 1.0,
+    noise: NoiseModel | None = None,
+    soc0: float | None = None,
+    max_gap: float = 60.0,
+    rest_current: float | None = None,
+) -> list[Experiment]:
+    """The fit experiments of one logged test (one per segment between gaps); see the module docstring."""
+    where = data.source or data.name
+    segs = segments(data, max_gap)
+    if not segs:
+        raise InputError(f"{where}: no segment of at least 10 samples between gaps")
+    cap = cell.capacity()
+    i_rest = rest_current if rest_current is not None else 0.01 * float(cell["Q_nom"])
+    start = soc0 if soc0 is not None else data.meta.get("soc0")
+    if start is None:
+        k = segs[0].start
+        if abs(data.current[k]) > i_rest:
+            raise InputError(
+                f"{where}: current flows at the first sample ({data.current[k]:.3g} A): give the start SOC "
+                "(soc0 / --soc0), or start the log at rest"
+            )
+        start = cell.soc_from_voltage(float(np.clip(data.voltage[k], float(cell.ocv(0.0)), float(cell.ocv(1.0)))))
+    start = float(start)
+    ah = data.columns.get(NET_CAPACITY)
+    if ah is None:
+        ah = np.concatenate([[0.0], np.cumsum(data.current[:-1] * np.diff(data.t))]) / 3600.0
+    amb = data.ambient_K()
+    surf = data.temperature_K(SURFACE)
+    out = []
+    for n, sl in enumerate(segs, start=1):
+        k0 = sl.start
+        soc = float(np.clip(start + (ah[k0] - ah[segs[0].start]) / cap, 0.0, 1.0))
+        t, i, v = resample(data.t[sl], data.current[sl], data.voltage[sl], dt)
+        name = data.name if len(segs) == 1 else f"{data.name}#{n}"
+        prof = Profile(t, i, id=name, soc0=soc)
+        T0 = float(surf[k0]) if surf is not None and np.isfinite(surf[k0]) else None
+        out.append(Experiment(name, prof, v, soc, variance_of(prof, noise), amb, T0))
+    return out
