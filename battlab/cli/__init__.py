@@ -33,11 +33,12 @@ def main() -> None:
 def _register() -> None:
     # each command module registers here (one import line each)
     from battlab.cli.export import export
+    from battlab.cli.fit import fit, validate
     from battlab.cli.library import library
     from battlab.cli.simulate import simulate
     from battlab.cli.virtual_tester import virtual_tester
 
-    for cmd in (simulate, library, export, virtual_tester):
+    for cmd in (simulate, library, export, virtual_tester, fit, validate):
         main.add_command(cmd)
 
 
