@@ -33,7 +33,7 @@ def read_panasonic(path: str | Path) -> LoggedData:
     path = Path(path)
     try:
         raw = scipy.io.loadmat(path, squeeze_me=True, struct_as_record=False)
-    except (ValueError, OSError, NotImplementedError) as exc:
+    except (ValueError, OSError, NotImplementedError, TypeError, scipy.io.matlab.MatReadError) as exc:
         raise InputError(f"{path}: not a readable MATLAB .mat file ({exc})") from None
     if "meas" not in raw:
         raise InputError(f"{path}: no struct 'meas' (keys: {sorted(k for k in raw if not k.startswith('__'))})")

@@ -1,0 +1,82 @@
+"""Statistics of a weighted fit (eqs. 44-46 corrected): covariance, t intervals, bounds, singular information."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from battlab import parameters
+from battlab.identify import statistics
+
+NAMES = ("R_s_n", "D_s_n", "eps_e_n")
+
+
+def _linear_problem(seed: int, n: int = 40) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 1, n)
+    J = 50 * np.column_stack([np.ones(n), t, t**2])  # weighted Jacobian (unit noise)
+    truth = np.array([0.3, 0.5, 0.6])
+    y = J @ truth + rng.normal(0, 1.0, n)
+    est = np.linalg.lstsq(J, y, rcond=None)[0]
+    return J, y - J @ est, est
+
+
+def test_covariance_is_inverse_information_and_interval_uses_t_without_sqrt_n() -> None:
+    J, r, est = _linear_problem(0)
+    st = statistics.compute(NAMES, est, J, r)
+    assert st.valid
+    np.testing.assert_allclose(st.covariance, np.linalg.inv(J.T @ J), rtol=1e-10)
+    assert st.t_value == pytest.approx(stats.t.ppf(0.975, 40 - 3))
+    np.testing.assert_allclose(st.covariance_scaled, st.covariance * (r @ r) / 37, rtol=1e-10)
+    e = st["eps_e_n"]  # linear parameter: interval is symmetric in physical units
+    spec = parameters.SPECS["eps_e_n"]
+    half = st.t_value * np.sqrt(st.covariance[2, 2]) * (spec.upper - spec.lower)
+    assert e.ci95 == pytest.approx((e.value - half, e.value + half))
+    d = st["D_s_n"]  # log parameter: interval is multiplicative, asymmetric
+    assert d.ci95[0] < d.value < d.ci95[1]
+    assert d.value / d.ci95[0] == pytest.approx(d.ci95[1] / d.value, rel=1e-9)
+    assert abs(st.correlation[0, 1]) <= 1 and st.correlation[0, 0] == pytest.approx(1)
+
+
+def test_coverage_of_linear_problem_is_nominal() -> None:
+    covered = []
+    for seed in range(400):
+        J, r, est = _linear_problem(seed)
+        st = statistics.compute(NAMES, est, J, r)
+        for k, name in enumerate(NAMES):
+            covered.append(st[name].covers(parameters.SPECS[name].denormalise([0.3, 0.5, 0.6][k])))
+    assert 0.93 <= np.mean(covered) <= 0.97
+
+
+def test_singular_information_gives_no_intervals() -> None:
+    J, r, est = _linear_problem(1)
+    J = J.copy()
+    J[:, 2] = 2 * J[:, 1]  # two parameters with proportional sensitivities
+    st = statistics.compute(NAMES, est, J, r)
+    assert not st.valid
+    assert "singular" in st.reason and "D_s_n" in st.reason and "eps_e_n" in st.reason
+    assert all(e.ci95 is None for e in st.estimates)
+    J[:, 2] = 0.0
+    st = statistics.compute(NAMES, est, J, r)
+    assert not st.valid and "zero sensitivity to eps_e_n" in st.reason
+
+
+def test_parameter_at_bound_gets_a_flagged_one_sided_interval() -> None:
+    J, r, est = _linear_problem(2)
+    est = est.copy()
+    est[2] = 1.0
+    st = statistics.compute(NAMES, est, J, r, [None, None, "upper"])
+    e = st["eps_e_n"]
+    assert e.at_bound == "upper"
+    assert e.ci95[1] == pytest.approx(parameters.SPECS["eps_e_n"].upper)
+    assert e.ci95[0] < e.ci95[1]
+    assert "one-sided" in st.reason
+    # the free parameters' statistics are those of the reduced problem
+    np.testing.assert_allclose(st.covariance[:2, :2], np.linalg.inv(J[:, :2].T @ J[:, :2]), rtol=1e-10)
+
+
+def test_no_degrees_of_freedom_is_invalid() -> None:
+    J = np.eye(3)
+    st = statistics.compute(NAMES, np.full(3, 0.5), J, np.zeros(3))
+    assert not st.valid and "degrees of freedom" in st.reason
