@@ -5,8 +5,9 @@ charge passed is q(t) = −∫I dt [Ah] from the start (discharged charge counts
 a charge branch cover the same q, the pseudo-OCV is their mean: the C/20 overpotential and the hysteresis are
 about symmetric, so the mean cancels them to first order (``half_gap_mV`` reports half the difference). Where
 only one branch exists, that branch is shifted towards equilibrium by its own overpotential, measured as the
-voltage jump at the step between that branch and the adjacent rest (the first sample after the current
-switches). Rests are not used.
+voltage jump at the step from the preceding rest into the branch (the first sample after the current switches;
+without a preceding rest no shift: the jump at the branch's end is not used, since at the end of a discharge it
+is mostly the knee's diffusion relaxation). Rests are not used.
 
 Fit (eqs. 13–19). With θ⁻(q) = θ⁻(0) − 3600 q/(F H⁻) and θ⁺(q) = (n_Li − H⁻θ⁻(q))/H⁺ (eqs. 10, 13), the
 model is V(q) = U⁺(θ⁺(q)) − U⁻(θ⁻(q)) (eqs. 14–15). The unknowns x = [θ⁻(0), H⁺, H⁻, n_Li] of eq. 16 are
@@ -116,14 +117,10 @@ def ocv_curve(
             out = np.where(only, np.nan, out)
             continue
         j0, j1 = jump(branch)
-        qa, qb = q[branch[0]], q[branch[1] - 1]
-        # the overpotential adds to the voltage on charge and subtracts on discharge: undo it
-        near_start = np.abs(grid - qa) < np.abs(grid - qb)
-        shift = np.where(near_start, j0, j1)
-        shift = np.where(np.isfinite(shift), shift, np.nanmean([j0, j1]) if np.isfinite([j0, j1]).any() else 0.0)
+        shift = j0 if np.isfinite(j0) else 0.0
         out = np.where(only, v - sign * shift, out)
         notes.append(f"{'discharge' if sign < 0 else 'charge'} only on {only.mean():.0%} of the range, shifted by "
-                     f"its rest-step overpotential ({1e3 * np.nanmean(shift[only]):.1f} mV)")
+                     f"its rest-step overpotential ({1e3 * shift:.1f} mV)")
     keep = np.isfinite(out)
     method = ("mean of charge and discharge at equal charge passed" if both.any() else "single branch")
     if notes:

@@ -1,0 +1,83 @@
+"""Equilibrium identification (eqs. 10-21): synthetic C/20 cycle on nca18650 and the real Panasonic C/20 test."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import battlab
+from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
+from battlab.io import load_data
+from protocols.errors import InputError
+from protocols.profile import Profile
+
+
+@pytest.fixture(scope="module")
+def c20_cycle() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A simulated C/20 discharge, 1 h rest, C/20 charge on nca18650, sampled every 60 s."""
+    cell = battlab.Cell.load("nca18650")
+    i = 2.7 / 20
+    seg = [(-i, 21 * 3600.0), (0.0, 3600.0), (i, 21 * 3600.0)]
+    ts, cs, vs, t0 = [], [], [], 0.0
+    soc = 1.0
+    for cur, dur in seg:
+        prof = Profile.constant(cur, dur, 60.0)
+        res = battlab.simulate(cell, prof, soc0=soc, isothermal=True, v_limits=(2.5, 4.2))
+        ts.append(res.t + t0)
+        cs.append(res.current)
+        vs.append(res.voltage)
+        t0 += res.t[-1] + 60.0
+        soc = float(np.clip(soc + cur * res.t[-1] / 3600 / cell.capacity(), 0, 1))
+    return np.concatenate(ts), np.concatenate(cs), np.concatenate(vs)
+
+
+def test_synthetic_c20_recovers_table4(c20_cycle) -> None:
+    t, i, v = c20_cycle
+    curve = ocv_curve(t, i, v, source="synthetic")
+    assert "mean of charge and discharge" in curve.method
+    cell = battlab.Cell.load("nca18650")
+    eq = fit_equilibrium(curve, cell)
+    assert eq.converged
+    assert eq.rmse_5_95_mV < 5.0
+    assert eq.eps_s_n == pytest.approx(0.5438895, rel=0.03)
+    assert eq.eps_s_p == pytest.approx(0.6663649, rel=0.03)
+    assert eq.n_Li == pytest.approx(0.1406, rel=0.03)
+    assert eq.capacity == pytest.approx(cell.capacity(), rel=0.02)
+    for soc, volt in eq.table5.items():  # Table 5 of the identified cell vs the true cell
+        assert volt == pytest.approx(float(cell.ocv(soc)), abs=0.01)
+    assert eq.cell["eps_s_n"] == eq.eps_s_n and eq.area_scale == 1.0
+
+
+def test_discharge_only_is_shifted_and_bad_direction_is_an_error(c20_cycle) -> None:
+    t, i, v = c20_cycle
+    k = int(np.argmax(i > 0))
+    curve = ocv_curve(t[:k], i[:k], v[:k])
+    assert curve.method.startswith("single branch")
+    eq = fit_equilibrium(curve, battlab.Cell.load("nca18650"))
+    assert eq.capacity == pytest.approx(2.7, rel=0.03)
+    with pytest.raises(InputError, match="expected θ⁻ to fall"):
+        fit_equilibrium(ocv_curve(t[:k], -i[:k], v[:k]), battlab.Cell.load("nca18650"))
+
+
+def test_panasonic_c20(shared_data) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        d = load_data(shared_data / "panasonic-18650pf" / "25degC_C20_OCV.mat")
+    curve = ocv_curve(d.t, d.current, d.voltage, source=d.source)
+    assert 30 < curve.half_gap_mV < 80  # C/20 overpotential + hysteresis, removed by the mean
+    cell = battlab.Cell.load("nca18650")
+    plain = fit_equilibrium(curve, cell, rated_capacity=2.9)  # the paper's method with the stand-in OCPs
+    assert plain.rmse_5_95_mV < 25.0
+    eq = fit_equilibrium(curve, cell, ocp_terms=6, rated_capacity=2.9)
+    assert eq.rmse_5_95_mV <= 10.0  # the target, with the positive-OCP correction
+    assert eq.rmse_5_95_mV < plain.rmse_5_95_mV
+    for e in (plain, eq):
+        assert 2.9 <= e.capacity <= 3.1  # 2.997 Ah were discharged at C/20
+        assert e.cell["Q_nom"] == 2.9
+        n0, n1, p0, p1 = e.window
+        assert 0 <= n0 < n1 <= 1 and 0 <= p1 < p0 <= 1
+        assert e.eps_s_n + e.cell["eps_e_n"] < 1 and e.eps_s_p + e.cell["eps_e_p"] < 1
+    assert float(eq.cell.ocv(0.0)) == pytest.approx(2.5, abs=1e-6)
+    assert float(eq.cell.ocv(1.0)) == pytest.approx(4.2, abs=1e-6)
