@@ -32,13 +32,15 @@ def main() -> None:
 
 def _register() -> None:
     # each command module registers here (one import line each)
+    from battlab.cli.design import design, groups, sensitivity
     from battlab.cli.export import export
     from battlab.cli.fit import fit, validate
     from battlab.cli.library import library
+    from battlab.cli.run import run, runs
     from battlab.cli.simulate import simulate
     from battlab.cli.virtual_tester import virtual_tester
 
-    for cmd in (simulate, library, export, virtual_tester, fit, validate):
+    for cmd in (simulate, library, export, virtual_tester, sensitivity, groups, design, fit, validate, run, runs):
         main.add_command(cmd)
 
 

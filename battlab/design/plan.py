@@ -1,0 +1,179 @@
+"""Write the design as a plan: protocol TOML files that :meth:`protocols.Protocol.load` reads (so ``battlab export``
+and the runner can use them), plus the design metadata in ``summary.json`` and ``<plan>.design.json``.
+
+``plan.toml`` is the whole experiment: the selected profiles of group 1, then group 2, … each brought to its start
+SOC and rested (:func:`protocols.concatenate`); ``plan.group<k>.toml`` holds group k alone. Profile steps refer to
+the library by id (``library_id`` plus the top-level ``library`` file) when the library file beside the store
+still holds the very same profiles (checked by hash), else the profiles are written inline. ``Protocol.load``
+rejects unknown top-level fields, so the design metadata (groups, parameters, selections, criterion, log det) lives
+in the JSON sidecars and in the protocol's ``description``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from battlab.design.groups import GroupDesign
+from battlab.sweep import SensitivityStore, model_version, profile_hash
+from protocols.concatenate import concatenate
+from protocols.errors import InputError
+from protocols.profile import Profile
+from protocols.protocol import ProfileStep, Protocol
+
+
+@dataclass(frozen=True)
+class PlanFiles:
+    """Paths written by :func:`write_plan`."""
+
+    plan: Path
+    groups: tuple[Path, ...]
+    summary: Path
+    sidecar: Path
+
+
+def _library_ref(store: SensitivityStore, profiles: Sequence[Profile], plan_dir: Path) -> str | None:
+    """The library path to write in the plan, if the library file holds exactly these profiles."""
+    lib_path = store.attrs.get("library_path") or ""
+    if not lib_path or not Path(lib_path).is_file():
+        return None
+    from protocols.library import Library
+
+    try:
+        lib = Library.load(lib_path)
+    except InputError:
+        return None
+    for p in profiles:
+        if p.id not in lib or profile_hash(lib[p.id]) != profile_hash(p):
+            return None
+    try:
+        return os.path.relpath(lib_path, plan_dir)
+    except ValueError:  # another drive (Windows)
+        return str(lib_path)
+
+
+def _protocol(name: str, groups: Sequence[tuple[int, list[Profile]]], description: str) -> Protocol:
+    """Concatenate the groups' profiles in order and label each profile step with its group."""
+    flat = [p for _, ps in groups for p in ps]
+    proto = concatenate(flat, name=name).protocol
+    group_of = [g for g, ps in groups for _ in ps]
+    steps, k = [], 0
+    for st in proto.steps:
+        if isinstance(st, ProfileStep):
+            st = ProfileStep(st.profile, f"group {group_of[k]}: profile {st.profile.id}")
+            k += 1
+        steps.append(st)
+    return Protocol(proto.name, tuple(steps), proto.limits, proto.capacity_ah, description)
+
+
+def _write(proto: Protocol, path: Path, library_ref: str | None) -> None:
+    import tomli_w
+
+    data = proto.to_dict()
+    if library_ref is not None:
+        data["library"] = library_ref
+        for step in data["steps"]:
+            if step["kind"] == "profile":
+                pid = step["profile"]["id"]
+                step.pop("profile")
+                step["library_id"] = int(pid)
+    path.write_text(tomli_w.dumps(data))
+
+
+def summary(designs: Sequence[GroupDesign], criterion: str, solve_seconds: float, **extra: Any) -> dict[str, Any]:
+    """The machine-readable summary (DESIGN.md contract plus details)."""
+    return {
+        "criterion": criterion,
+        "groups": [
+            {"parameters": d.parameters, "selected": d.selected, "logdet": d.logdet, **d.to_dict()} for d in designs
+        ],
+        "solve_seconds": solve_seconds,
+        **extra,
+    }
+
+
+def write_plan(
+    designs: Sequence[GroupDesign],
+    store: SensitivityStore,
+    out: str | Path,
+    *,
+    criterion: str,
+    solve_seconds: float,
+    extra: dict[str, Any] | None = None,
+) -> PlanFiles:
+    """Write ``out`` (the whole plan), one TOML per group, ``summary.json`` and ``<out>.design.json``."""
+    out = Path(out)
+    if out.suffix.lower() != ".toml":
+        raise InputError(f"{out}: the plan is a .toml file")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    per_group = [(d.index, [store.profile(pid) for pid in d.selected]) for d in designs]
+    all_profiles = [p for _, ps in per_group for p in ps]
+    ref = _library_ref(store, all_profiles, out.parent)
+    cell = store.attrs["cell_name"]
+    desc = (
+        f"{criterion}-optimal plan for cell {cell}: "
+        + "; ".join(f"group {d.index} ({', '.join(d.new_parameters)}): profiles {d.selected}" for d in designs)
+        + f" (design metadata in {out.stem}.design.json)"
+    )
+    whole = _protocol(f"OED plan ({criterion}-optimal, {cell})", per_group, desc)
+    _write(whole, out, ref)
+    group_paths = []
+    for d, (g, ps) in zip(designs, per_group, strict=True):
+        gp = out.with_name(f"{out.stem}.group{g}.toml")
+        _write(
+            _protocol(f"OED group {g} ({criterion}-optimal, {cell})", [(g, ps)], f"group {g}: {d.parameters}"), gp, ref
+        )
+        group_paths.append(gp)
+    _check_round_trip(out, all_profiles)
+    data = summary(
+        designs,
+        criterion,
+        solve_seconds,
+        cell=cell,
+        cell_hash=store.attrs["cell_hash"],
+        model_version=model_version(),
+        store=str(store.path),
+        plan=str(out),
+        group_plans=[str(p) for p in group_paths],
+        library=ref,
+        **(extra or {}),
+    )
+    text = json.dumps(_jsonable(data), indent=1)
+    sp = out.with_name("summary.json")
+    sp.write_text(text)
+    side = out.with_name(f"{out.stem}.design.json")
+    side.write_text(text)
+    return PlanFiles(out, tuple(group_paths), sp, side)
+
+
+def _check_round_trip(path: Path, profiles: Sequence[Profile]) -> None:
+    """The plan must load with :meth:`Protocol.load` and carry exactly the selected profiles."""
+    proto = Protocol.load(path)
+    got = [s.profile for s in proto.steps if isinstance(s, ProfileStep)]
+    if len(got) != len(profiles) or any(
+        profile_hash(a.with_meta(soc0=b.soc0)) != profile_hash(b) for a, b in zip(got, profiles, strict=True)
+    ):
+        raise RuntimeError(f"{path}: the written plan does not reproduce the selected profiles")  # a bug, not input
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.floating | float):
+        v = float(x)
+        return v if np.isfinite(v) else None
+    if isinstance(x, np.bool_):
+        return bool(x)
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    return x

@@ -1,0 +1,1 @@
+"""Figures as PNG files (matplotlib, Agg backend: no display needed)."""
