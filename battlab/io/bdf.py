@@ -59,8 +59,10 @@ def read_bdf_csv(path: str | Path) -> LoggedData:
     cols: dict[str, np.ndarray] = {}
     for name in df.columns:
         values = pd.to_numeric(df[name], errors="coerce").to_numpy(dtype=float)
-        text = df[name].astype(str).str.strip()
-        bad = np.isnan(values) & ~text.str.lower().isin(["nan", "", "none"]).to_numpy()
+        bad = np.zeros(values.size, bool)
+        if not pd.api.types.is_numeric_dtype(df[name]):  # text in the column: which cells are not numbers?
+            text = df[name].astype(str).str.strip().str.lower()
+            bad = np.isnan(values) & ~text.isin(["nan", "", "none"]).to_numpy()
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
             raise InputError(f"{path}, line {k + 2}: column {name!r}: expected a number, got {df[name].iloc[k]!r}")

@@ -1,0 +1,58 @@
+"""``battlab fit`` and ``battlab validate`` from the command line."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from click.testing import CliRunner
+
+import battlab
+from battlab import parameters as P
+from battlab.cli import main
+from battlab.identify.forward import ForwardModel
+from battlab.identify.virtual import synthesize
+from battlab.io.bdf import write_bdf_csv
+from battlab.io.data import CURRENT, TIME, VOLTAGE, LoggedData
+from protocols.library import Library
+
+
+def _virtual_csv(tmp_path, pid: int, seed: int) -> str:
+    cell = battlab.Cell.load("nca18650")
+    truth = cell.with_values(R_s_n=P.SPECS["R_s_n"].truth, R_s_p=P.SPECS["R_s_p"].truth)
+    prof = Library.build()[pid]
+    e = synthesize(ForwardModel(cell), truth, prof, prof.soc0, seed=seed)
+    data = LoggedData(f"p{pid}", {TIME: prof.t, VOLTAGE: e.voltage, CURRENT: prof.current}, {"soc0": prof.soc0})
+    return str(write_bdf_csv(data, tmp_path / f"p{pid}.bdf.csv"))
+
+
+def test_fit_and_validate(tmp_path) -> None:
+    a, b = _virtual_csv(tmp_path, 19, 1), _virtual_csv(tmp_path, 37, 2)
+    out = tmp_path / "cell.bpx.json"
+    r = CliRunner().invoke(main, ["fit", a, "--cell", "nca18650", "--params", "R_s_n,R_s_p", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert set(summary["parameters"]) == {"R_s_n", "R_s_p"} and summary["converged"] is True
+    for name, entry in summary["parameters"].items():
+        lo, hi = entry["ci95"]
+        assert lo <= P.SPECS[name].truth <= hi and entry["at_bound"] is False
+    assert summary["rmse_mV"]["p19"] < 10
+    fitted = battlab.Cell.from_bpx(out)
+    assert fitted["R_s_n"] == summary["parameters"]["R_s_n"]["value"]
+    r = CliRunner().invoke(main, ["validate", b, "--cell", "nca18650", "--cell", str(out), "-o", str(tmp_path / "v")])
+    assert r.exit_code == 0, r.output
+    table = json.loads((tmp_path / "v" / "summary.json").read_text())["rmse_mV"]
+    assert table["cell"]["p37"] < table["nca18650"]["p37"]
+    assert (tmp_path / "v" / "error_cdf.png").is_file() and (tmp_path / "v" / "p37.png").is_file()
+
+
+def test_bad_input_is_one_line(tmp_path) -> None:
+    p = tmp_path / "bad.bdf.csv"
+    t = np.arange(10.0)
+    v = np.full(10, 3.7)
+    v[4] = np.nan
+    np.savetxt(p, np.column_stack([t, v, np.zeros(10)]), delimiter=",", header=f"{TIME},{VOLTAGE},{CURRENT}",
+               comments="")
+    r = CliRunner().invoke(main, ["fit", str(p), "--cell", "nca18650", "-o", str(tmp_path / "c.json")])
+    assert r.exit_code == 2
+    assert "Voltage / V" in r.output and "sample 4" in r.output and "Traceback" not in r.output
