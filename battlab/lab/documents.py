@@ -1,0 +1,183 @@
+"""Documents the run engine emits, and the subscribers that consume them (bluesky's start → events → stop).
+
+``start`` (:class:`RunStart`: columns and metadata) → per step ``step_start`` / ``event`` rows / ``step_stop`` →
+``stop`` (:class:`RunStop`: status, reason, summary). Subscribers are called in order; the log writer comes
+first, so a step is recorded complete in the catalog only after its rows are flushed to disk.
+
+Events are plain tuples in the order of ``RunStart.columns`` (no object per sample: the runner's overhead per
+sample stays in microseconds).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from battlab.lab.catalog import Catalog
+from battlab.lab.plan import PlanEntry
+
+log = logging.getLogger("battlab.lab")
+
+
+@dataclass(frozen=True)
+class RunStart:
+    run_id: int | None
+    columns: tuple[str, ...]
+    meta: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class StepStart:
+    entry: PlanEntry
+    step_count: int
+    t_s: float
+    row: int
+    kind: str
+    duration_s: float | None = None
+
+
+@dataclass(frozen=True)
+class StepStop:
+    entry: PlanEntry
+    step_count: int
+    status: str  # completed | aborted | stopped
+    ended_by: str | None
+    t_s: float | None
+    row: int
+
+
+@dataclass(frozen=True)
+class RunStop:
+    status: str  # completed | aborted | stopped
+    reason: str | None
+    summary: dict[str, Any] = field(default_factory=dict)
+
+
+class Subscriber:
+    """A document consumer; override what you need."""
+
+    def start(self, doc: RunStart) -> None: ...
+
+    def step_start(self, doc: StepStart) -> None: ...
+
+    def event(self, row: tuple[float, ...]) -> None: ...
+
+    def step_stop(self, doc: StepStop) -> None: ...
+
+    def stop(self, doc: RunStop) -> None: ...
+
+
+class LogSink(Subscriber):
+    """Writes events to the HDF5 run log: buffered, flushed every ``flush_s`` real seconds, at every step end
+    and at the stop (a killed runner loses at most the last ``flush_s`` seconds).
+
+    ``open_writer(columns, meta)`` creates the log when the start document arrives (the resume path copies the
+    interrupted log first: :func:`battlab.lab.logfile.reopen`).
+    """
+
+    def __init__(self, open_writer: Any, flush_s: float = 1.0) -> None:
+        self._open_writer = open_writer
+        self.flush_s = flush_s
+        self.writer: Any = None
+        self._buffer: list[tuple[float, ...]] = []
+        self._last_flush = time.perf_counter()
+        self.flushes = 0
+        self._written = 0
+
+    @property
+    def rows(self) -> int:
+        """Rows in the log, flushed or buffered."""
+        return self._written + len(self._buffer)
+
+    def start(self, doc: RunStart) -> None:
+        self.writer = self._open_writer(doc.columns, doc.meta)
+        self._written = self.writer.n_rows
+        self._last_flush = time.perf_counter()
+
+    def event(self, row: tuple[float, ...]) -> None:
+        self._buffer.append(row)
+        if time.perf_counter() - self._last_flush >= self.flush_s:
+            self.flush()
+
+    def flush(self) -> None:
+        if self.writer is None:
+            return
+        if self._buffer:
+            self.writer.append(np.asarray(self._buffer, dtype=float))
+            self._written += len(self._buffer)
+            self._buffer.clear()
+        self.writer.flush()
+        self.flushes += 1
+        self._last_flush = time.perf_counter()
+
+    def step_stop(self, doc: StepStop) -> None:
+        self.flush()
+
+    def stop(self, doc: RunStop) -> None:
+        if self.writer is None:
+            return
+        self.flush()
+        self.writer.close({"status": doc.status, "reason": doc.reason, **doc.summary})
+
+
+class CatalogSink(Subscriber):
+    """Records steps and the run's status in the catalog."""
+
+    def __init__(self, catalog: Catalog, run_id: int, rows: Any) -> None:
+        self.catalog = catalog
+        self.run_id = run_id
+        self._rows = rows  # callable: rows in the log now
+
+    def start(self, doc: RunStart) -> None:
+        self.catalog.update(self.run_id, t0=doc.meta.get("t0_s"))
+
+    def step_start(self, doc: StepStart) -> None:
+        e = doc.entry
+        self.catalog.step_started(
+            self.run_id,
+            step_count=doc.step_count,
+            entry=e.entry,
+            step_index=e.step_index,
+            trial=e.trial,
+            kind=doc.kind,
+            label=e.label,
+            t_start=doc.t_s,
+            row_start=doc.row,
+        )
+
+    def step_stop(self, doc: StepStop) -> None:
+        self.catalog.step_ended(
+            self.run_id,
+            step_count=doc.step_count,
+            status=doc.status,
+            ended_by=doc.ended_by,
+            t_end=doc.t_s,
+            row_end=doc.row,
+            next_entry=doc.entry.entry + 1 if doc.status == "completed" else None,
+        )
+
+    def stop(self, doc: RunStop) -> None:
+        self.catalog.update(self.run_id, status=doc.status, reason=doc.reason, rows=int(self._rows()))
+
+
+def emit(subscribers: Sequence[Subscriber], name: str, doc: Any) -> None:
+    """Deliver ``doc`` to every subscriber's ``name`` handler, in order."""
+    for s in subscribers:
+        getattr(s, name)(doc)
+
+
+__all__ = [
+    "CatalogSink",
+    "LogSink",
+    "RunStart",
+    "RunStop",
+    "StepStart",
+    "StepStop",
+    "Subscriber",
+    "emit",
+]

@@ -1,0 +1,604 @@
+"""The run engine: executes a plan's entries on a Cycler and a Chamber through an explicit state machine.
+
+States (:class:`RunState`)::
+
+    IDLE → PREFLIGHT → RUNNING → COMPLETED
+               │          │
+               └──────────┴──→ STOPPING → ABORTED | STOPPED
+
+PREFLIGHT: identities (compared with the recorded ones on a resume), the instrument reset, the instrument's own
+protections programmed from the envelope (voltage and current limits, over-temperature trip, I/O watchdog), the
+cell's rest voltage within the envelope, the chamber free of alarms, at its set point and stable. RUNNING: every
+entry in turn (:mod:`battlab.lab.steps`), one sample per tick on the instrument's clock, each sample emitted as an
+event *before* it is checked, so the sample that breaches a limit is logged. STOPPING: :func:`safe_shutdown`, then
+the stop document with the reason. Every failure ends in STOPPING: a breached limit, a protection trip, a chamber
+alarm, a persistent link failure (after ``comm_retries`` retries with doubling back-off on top of the driver's own),
+an instrument fault, Ctrl-C (a stop request, honoured at the next tick), or a bug.
+
+Concurrency: one thread, blocking I/O (as the drivers). Times are the instrument's (``Measurement.t_s``) where it
+has a clock, else the run clock's; ``Test Time / s`` counts from the run's origin ``t0_s``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import enum
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+from battlab.lab.documents import RunStart, RunStop, StepStart, StepStop, Subscriber, emit
+from battlab.lab.limits import Envelope
+from battlab.lab.logfile import COLUMNS
+from battlab.lab.plan import Plan, PlanEntry
+from battlab.lab.safety import Shutdown, check_sample, safe_shutdown
+from battlab.lab.steps import ResistanceEstimate, Sample, executor_for
+from drivers.clock import Clock
+from drivers.errors import CommunicationError, InstrumentError, InstrumentFault
+from drivers.interfaces import Chamber, Cycler
+from protocols.errors import InputError
+
+log = logging.getLogger("battlab.lab")
+T = TypeVar("T")
+
+#: a programmed current counts as changed above this (A); below, the instrument is not asked again
+CURRENT_RESOLUTION_A = 1e-5
+#: measured vs programmed current: beyond max(abs, rel × |I|) the output is suspected off
+MISMATCH_A, MISMATCH_REL = 0.05, 0.05
+
+
+class RunState(enum.Enum):
+    IDLE = "idle"
+    PREFLIGHT = "preflight"
+    RUNNING = "running"
+    STOPPING = "stopping"
+    COMPLETED = "completed"
+    ABORTED = "aborted"
+    STOPPED = "stopped"
+
+
+_TRANSITIONS: dict[RunState, frozenset[RunState]] = {
+    RunState.IDLE: frozenset({RunState.PREFLIGHT}),
+    RunState.PREFLIGHT: frozenset({RunState.RUNNING, RunState.STOPPING}),
+    RunState.RUNNING: frozenset({RunState.STOPPING, RunState.COMPLETED}),
+    RunState.STOPPING: frozenset({RunState.ABORTED, RunState.STOPPED}),
+    RunState.COMPLETED: frozenset(),
+    RunState.ABORTED: frozenset(),
+    RunState.STOPPED: frozenset(),
+}
+
+
+class Abort(Exception):
+    """Ends the run: ``kind`` (``safety``, ``protection``, ``chamber``, ``communication``, ``instrument``,
+    ``preflight``, ``regulation``, ``internal``) and a message naming the cause."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(f"{kind}: {message}")
+        self.kind = kind
+        self.message = message
+
+
+class StopRequested(Exception):
+    """The operator asked to stop (Ctrl-C)."""
+
+
+@dataclass
+class RunStats:
+    """Counters for the summary and the benchmark (wall times in s)."""
+
+    samples: int = 0
+    current_sets: int = 0
+    retries: int = 0
+    late_samples: int = 0
+    max_late_s: float = 0.0
+    sum_late_s: float = 0.0
+    loop_wall_s: float = 0.0
+    io_wall_s: float = 0.0
+    sleep_wall_s: float = 0.0
+    sink_wall_s: float = 0.0
+    #: from the instant a new current took effect (instrument's stamp) to the next sample's stamp
+    max_set_to_sample_s: float = 0.0
+    sum_set_to_sample_s: float = 0.0
+    set_to_sample_n: int = 0
+    resistance_ohm: float = math.nan
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def overhead_per_sample_s(self) -> float:
+        """Wall time per sample the runner spends outside instrument calls and sleeps (incl. logging)."""
+        return max(0.0, self.loop_wall_s - self.io_wall_s - self.sleep_wall_s) / max(1, self.samples)
+
+    def to_dict(self) -> dict[str, Any]:
+        n = max(1, self.samples)
+        return {
+            "samples": self.samples,
+            "current_sets": self.current_sets,
+            "retries": self.retries,
+            "late_samples": self.late_samples,
+            "mean_late_s": self.sum_late_s / n,
+            "max_late_s": self.max_late_s,
+            "overhead_per_sample_s": self.overhead_per_sample_s,
+            "io_per_sample_s": self.io_wall_s / n,
+            "mean_set_to_sample_s": self.sum_set_to_sample_s / max(1, self.set_to_sample_n),
+            "max_set_to_sample_s": self.max_set_to_sample_s,
+            "resistance_ohm": self.resistance_ohm,
+            "notes": list(self.notes),
+        }
+
+
+@dataclass
+class EngineConfig:
+    """What the engine needs besides the plan and the instruments."""
+
+    envelope: Envelope
+    clock: Clock
+    run_id: int | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+    start_entry: int = 0
+    step_count0: int = 0
+    row0: int = 0
+    #: resume: the run's time origin and the last logged test time (None: a new run)
+    t0_s: float | None = None
+    last_test_time_s: float | None = None
+    expected_identities: dict[str, str] | None = None
+    previous_steps: list[dict[str, Any]] = field(default_factory=list)
+    watchdog_s: float = 60.0
+    safe_set_point_degC: float | None = 25.0
+    soc_from_voltage: Callable[[float], float] | None = None
+
+
+class RunEngine:
+    """Runs ``plan`` on ``cycler`` and ``chamber``, emitting documents to ``subscribers``."""
+
+    def __init__(
+        self,
+        plan: Plan,
+        cycler: Cycler,
+        chamber: Chamber,
+        config: EngineConfig,
+        subscribers: Sequence[Subscriber] = (),
+    ) -> None:
+        self.plan = plan
+        self.options = plan.options
+        self.cycler = cycler
+        self.chamber = chamber
+        self.config = config
+        self.env = config.envelope
+        self.clock = config.clock
+        self.subscribers = list(subscribers)
+        self.entries = plan.entries()
+        self.state = RunState.IDLE
+        self.stats = RunStats()
+        self.reason: str | None = None
+        self.shutdown: Shutdown | None = None
+        self.resistance = ResistanceEstimate()
+        self.identities: dict[str, str] = {}
+        self.step_records: list[dict[str, Any]] = []
+        self._stop_reason: str | None = None
+        self._output_on = False
+        self._i_cmd = 0.0
+        self._last: Sample | None = None
+        self._T_amb_C = math.nan
+        self._t0 = 0.0
+        self._step_count = config.step_count0
+        self._rows = config.row0
+        self._rest_voltage = math.nan
+        self._current: tuple[PlanEntry, int, Any] | None = None
+        self._current_announced = False
+        self._pending_stop: tuple[PlanEntry, int, str | None, float | None, int] | None = None
+        self._next_chamber = -math.inf
+        self._next_protection = -math.inf
+        self._mismatches = 0
+        self._has_T = True
+        self._in_loop = False
+        self._t_applied: float | None = None
+        self._t_applied: float | None = None
+
+    # -- state machine -----------------------------------------------------------------------------------
+    def _to(self, new: RunState) -> None:
+        if new not in _TRANSITIONS[self.state]:
+            raise RuntimeError(f"run engine: illegal transition {self.state.value} -> {new.value}")
+        log.info("run state: %s -> %s", self.state.value, new.value)
+        self.state = new
+
+    def request_stop(self, reason: str = "stopped by the operator (Ctrl-C)") -> None:
+        """Ask for a safe stop at the next tick (signal-handler safe)."""
+        if self._stop_reason is None:
+            self._stop_reason = reason
+
+    @property
+    def stop_requested(self) -> bool:
+        return self._stop_reason is not None
+
+    def run(self) -> RunState:
+        """Run to the end; returns the final state (COMPLETED, ABORTED or STOPPED). Never leaves the output on."""
+        self._to(RunState.PREFLIGHT)
+        status, reason = RunState.COMPLETED, None
+        try:
+            self._preflight()
+            self._to(RunState.RUNNING)
+            self._emit("start", RunStart(self.config.run_id, self._columns(), self._start_meta()))
+            for entry in self.entries[self.config.start_entry :]:
+                self._run_entry(entry)
+            self._finish_ok()
+            self._flush_pending_stop()
+        except Abort as exc:
+            status, reason = RunState.ABORTED, str(exc)
+        except (StopRequested, KeyboardInterrupt):
+            status, reason = RunState.STOPPED, self._stop_reason or "stopped by the operator (Ctrl-C)"
+        except Exception as exc:  # a bug must still end in a safe state
+            log.exception("run engine: internal error")
+            status, reason = RunState.ABORTED, f"internal: {type(exc).__name__}: {exc}"
+        if status is RunState.COMPLETED:
+            self._to(RunState.COMPLETED)
+            self._emit("stop", RunStop("completed", None, self._summary()))
+            return self.state
+        self.reason = reason
+        log.error("run %s: %s", status.value, reason)
+        self._to(RunState.STOPPING)
+        self.shutdown = safe_shutdown(self.cycler, self.chamber, self.config.safe_set_point_degC)
+        self._output_on = False
+        try:
+            self._announce_current()
+            if self._current is not None:
+                entry, count, _ = self._current
+                t_last = self._last.t if self._last else None
+                self._record_step_stop(entry, count, status.value, reason, t_last, self._rows)
+                self._current = None
+        except Abort:
+            log.exception("run engine: recording the interrupted step failed")
+        self._to(status)
+        self._emit("stop", RunStop(status.value, reason, self._summary()))
+        return self.state
+
+    def _emit(self, name: str, doc: Any) -> None:
+        w0 = time.perf_counter()
+        try:
+            emit(self.subscribers, name, doc)
+        except Exception as exc:
+            if name == "stop":
+                log.exception("run engine: a subscriber failed on stop")
+                return
+            raise Abort("internal", f"recording failed ({name}): {type(exc).__name__}: {exc}") from exc
+        finally:
+            self.stats.sink_wall_s += time.perf_counter() - w0
+
+    # -- instrument calls --------------------------------------------------------------------------------
+    def _call(self, what: str, fn: Callable[..., T], *args: Any) -> T:
+        """An instrument call with bounded retries (doubling back-off on the run clock) on link errors."""
+        delay = self.options.backoff_s
+        w0 = time.perf_counter() if self._in_loop else None
+        try:
+            for attempt in range(self.options.comm_retries + 1):
+                try:
+                    return fn(*args)
+                except CommunicationError as exc:
+                    if attempt == self.options.comm_retries:
+                        raise Abort("communication", f"{what} failed after {attempt + 1} attempts: {exc}") from exc
+                    self.stats.retries += 1
+                    log.warning("%s failed (%s); retry %d in %g s", what, exc, attempt + 1, delay)
+                    self.clock.sleep(delay)
+                    delay *= 2
+                except InstrumentFault as exc:
+                    raise Abort("instrument", f"{what}: {exc}") from exc
+                except InstrumentError as exc:
+                    raise Abort("instrument", f"{what}: {exc}") from exc
+            raise AssertionError("unreachable")
+        finally:
+            if w0 is not None:
+                self.stats.io_wall_s += time.perf_counter() - w0
+
+    def _optional(self, what: str, fn: Callable[..., Any], *args: Any) -> bool:
+        """A setting the dialect may not support (InputError): noted, not fatal."""
+        try:
+            self._call(what, fn, *args)
+            return True
+        except InputError as exc:
+            self.stats.notes.append(f"{what}: not available ({exc}); runner-side checks only")
+            log.warning("%s: not available: %s", what, exc)
+            return False
+
+    # -- PREFLIGHT ---------------------------------------------------------------------------------------
+    def _preflight(self) -> None:
+        cyc, cha, env = self.cycler, self.chamber, self.env
+        self.identities = {
+            "cycler": self._call("cycler identity", cyc.identify),
+            "chamber": self._call("chamber identity", cha.identify),
+        }
+        expected = self.config.expected_identities
+        if expected:
+            for role, idn in self.identities.items():
+                if role in expected and expected[role] != idn:
+                    raise Abort(
+                        "preflight",
+                        f"{role} identity changed since the run started: {expected[role]!r} then, {idn!r} now",
+                    )
+        self._call("cycler reset", cyc.initialize)
+        with contextlib.suppress(InputError):
+            self._call("clear protection", cyc.clear_protection)
+        errors = self._call("cycler error queue", cyc.errors)
+        if errors:
+            self.stats.notes.append(f"cycler error queue at start: {errors}")
+        self._call("current limits", cyc.set_current_limits, env.current_charge_max, env.current_discharge_max)
+        try:
+            self._call("voltage limits", cyc.set_voltage_limits, env.voltage_min, env.voltage_max)
+        except InputError:
+            self._call("voltage limit", cyc.set_voltage_limits, None, env.voltage_max)
+            self.stats.notes.append("no instrument low-voltage cut-off: the runner enforces voltage_min")
+        if hasattr(cyc, "set_temperature_limit"):
+            self._optional("over-temperature trip", cyc.set_temperature_limit, env.temperature_max_K)
+        self._optional("watchdog", cyc.set_watchdog, self.config.watchdog_s)
+        if self.options.sample_period_s > self.config.watchdog_s / 3:
+            raise Abort(
+                "preflight",
+                f"sample_period_s {self.options.sample_period_s:g} s is too long for the "
+                f"instrument watchdog of {self.config.watchdog_s:g} s (at most a third of it)",
+            )
+        m = self._call("measure", cyc.measure)
+        self._has_T = m.temperature_K is not None
+        first = Sample(m.t_s if m.t_s is not None else self.clock.now(), m.voltage_V, m.current_A, m.temperature_K)
+        bad = check_sample(first, env)
+        if bad is not None:
+            raise Abort("preflight", f"cell at rest: {bad.message} (is the cell connected?)")
+        self._rest_voltage = first.v
+        alarms = self._call("chamber alarms", cha.alarms)
+        if alarms:
+            raise Abort("preflight", f"chamber alarm(s) before the run: {alarms}")
+        o = self.options
+        self._call("chamber set point", cha.set_point, o.ambient_degC)
+        poll = max(min(5.0, o.stable_hold_s / 6 if o.stable_hold_s > 0 else 5.0), o.sample_period_s)
+        try:
+            self._T_amb_C = self._call(
+                "chamber stable",
+                lambda: cha.wait_stable(
+                    o.stable_tol_K, o.stable_timeout_s, self.clock, hold_s=o.stable_hold_s, poll_s=poll
+                ),
+            )
+        except Abort as exc:
+            raise Abort("preflight", exc.message) from None
+        now = self.clock.now()
+        t0, last_tt = self.config.t0_s, self.config.last_test_time_s
+        if t0 is None:
+            self._t0 = now
+        else:
+            self._t0 = t0
+            if last_tt is not None and now - t0 <= last_tt:
+                self._t0 = now - last_tt - self.options.sample_period_s
+                self.stats.notes.append(
+                    f"instrument clock restarted: test time re-anchored at {last_tt + o.sample_period_s:.3f} s"
+                )
+
+    def _columns(self) -> tuple[str, ...]:
+        return COLUMNS
+
+    def _start_meta(self) -> dict[str, Any]:
+        meta = dict(self.config.meta)
+        soc = None
+        if self.config.soc_from_voltage is not None:
+            try:
+                soc = self.config.soc_from_voltage(self._rest_voltage)
+            except (InputError, ValueError) as exc:
+                self.stats.notes.append(f"SOC from the rest voltage: {exc}")
+        meta.update(
+            t0_s=self._t0,
+            identities=self.identities,
+            envelope=self.env.to_dict(),
+            rest_voltage_V=self._rest_voltage,
+            soc_from_rest_voltage=soc,
+            ambient_K=self.options.ambient_degC + 273.15,
+            ambient_stable_degC=self._T_amb_C,
+            watchdog_s=self.config.watchdog_s,
+            start_entry=self.config.start_entry,
+            n_entries=len(self.entries),
+            surface_temperature_logged=self._has_T,
+        )
+        return meta
+
+    # -- RUNNING -----------------------------------------------------------------------------------------
+    def _program(self, current: float) -> float | None:
+        """Program ``current``; returns the instrument time it took effect (if the instrument says)."""
+        self._call("set current", self.cycler.set_current, current)
+        self._i_cmd = current
+        self.stats.current_sets += 1
+        self._t_applied = getattr(self.cycler, "last_applied_t_s", None)
+        return self._t_applied
+
+    def _run_entry(self, entry: PlanEntry) -> None:
+        """Program the step's first current at once (the previous step's bookkeeping waits until this step's
+        first sample is taken, so no current flows unplanned while records are written), then sample to its end."""
+        o = self.options
+        ex = executor_for(entry.step, o.sample_period_s, self.env, gain=o.cv_gain, resistance=self.resistance)
+        self._step_count += 1
+        count = self._step_count
+        t_begin = self.clock.now()
+        ex.begin(t_begin, self._last)
+        self._current = (entry, count, ex)
+        self._current_announced = False
+        t_applied = self._program(ex.command(t_begin))
+        if not self._output_on:
+            self._call("output on", self.cycler.output, True)
+            self._output_on = True
+            t_applied = None  # the step starts when the output is on: at the first sample
+        if t_applied is not None:
+            ex.rebase(t_applied)
+        first = True
+        self._mismatches = 0
+        self.step_records.append(
+            {
+                "step_count": count,
+                "entry": entry.entry,
+                "step_index": entry.step_index,
+                "trial": entry.trial,
+                "kind": entry.step.kind.value,
+                "label": entry.label,
+                "status": "running",
+                "row_start": self._rows,
+                "t_start": ex.t0,
+            }
+        )
+        t_sched = ex.t0
+        loop0 = time.perf_counter()
+        self._in_loop = True
+        try:
+            while True:
+                s = self._measure(t_sched)
+                if first and t_applied is None:
+                    ex.rebase(s.t)
+                    self.step_records[-1]["t_start"] = s.t
+                self._record(s, entry, count, ex)
+                if first:
+                    first = False
+                    self._announce_current()
+                ended = ex.observe(s)
+                if ended is not None:
+                    break
+                if self._stop_reason is not None:
+                    raise StopRequested
+                self._housekeeping(s.t)
+                t_sched = ex.next_tick(s.t)
+                w0 = time.perf_counter()
+                self.clock.sleep(t_sched - self.clock.now())
+                self.stats.sleep_wall_s += time.perf_counter() - w0
+                if self._stop_reason is not None:
+                    raise StopRequested
+                i_new = ex.command(max(t_sched, self.clock.now()))
+                if abs(i_new - self._i_cmd) > CURRENT_RESOLUTION_A:
+                    self._program(i_new)
+        finally:
+            self._in_loop = False
+            self.stats.loop_wall_s += time.perf_counter() - loop0
+        self._current = None
+        self._pending_stop = (entry, count, ended, self._last.t if self._last else None, self._rows)
+
+    def _announce_current(self) -> None:
+        """Close the previous step's record (completed) and open the current one's (documents in order)."""
+        self._flush_pending_stop()
+        if self._current is not None and not self._current_announced:
+            entry, count, ex = self._current
+            rec = self._record_of(count)
+            row = rec["row_start"] if rec else self._rows
+            self._emit("step_start", StepStart(entry, count, ex.t0, row, entry.step.kind.value, ex.duration_s))
+            self._current_announced = True
+
+    def _flush_pending_stop(self) -> None:
+        if self._pending_stop is not None:
+            entry, count, ended, t_end, row_end = self._pending_stop
+            self._pending_stop = None
+            self._record_step_stop(entry, count, "completed", ended, t_end, row_end)
+
+    def _record_of(self, count: int) -> dict[str, Any] | None:
+        for rec in reversed(self.step_records):
+            if rec["step_count"] == count:
+                return rec
+        return None
+
+    def _record_step_stop(
+        self, entry: PlanEntry, count: int, status: str, ended_by: str | None, t_s: float | None, row_end: int
+    ) -> None:
+        rec = self._record_of(count)
+        if rec is not None:
+            rec.update(status=status, ended_by=ended_by, row_end=row_end, t_end=t_s)
+        self._emit("step_stop", StepStop(entry, count, status, ended_by, t_s, row_end))
+
+    def _measure(self, t_sched: float) -> Sample:
+        m = self._call("measure", self.cycler.measure)
+        t = m.t_s if m.t_s is not None else self.clock.now()
+        if self._t_applied is not None:
+            d = t - self._t_applied
+            self._t_applied = None
+            st = self.stats
+            st.set_to_sample_n += 1
+            st.sum_set_to_sample_s += d
+            st.max_set_to_sample_s = max(st.max_set_to_sample_s, d)
+        late = t - t_sched
+        if late > 0.5 * self.options.sample_period_s:
+            self.stats.late_samples += 1
+        if late > 0:
+            self.stats.sum_late_s += late
+            self.stats.max_late_s = max(self.stats.max_late_s, late)
+        return Sample(t, m.voltage_V, m.current_A, m.temperature_K)
+
+    def _record(self, s: Sample, entry: PlanEntry, count: int, ex: Any) -> None:
+        """Emit the sample (logged first), then check it against the envelope and the programmed current."""
+        t = s.t
+        T_C = s.T_K - 273.15 if s.T_K is not None else math.nan
+        row = (
+            t - self._t0,
+            time.time(),
+            ex.step_time(t),
+            s.v,
+            s.i,
+            T_C,
+            self._T_amb_C,
+            float(count),
+            float(entry.step_index),
+            float(entry.trial),
+        )
+        self._rows += 1
+        self.stats.samples += 1
+        self._emit("event", row)
+        self._last = s
+        self.resistance.observe(s)
+        bad = check_sample(s, self.env)
+        if bad is not None:
+            raise Abort("safety", bad.message)
+        tol = max(MISMATCH_A, MISMATCH_REL * abs(self._i_cmd))
+        if self._output_on and abs(s.i - self._i_cmd) > tol:
+            self._mismatches += 1
+            self._check_protection(force=True)
+            if self._mismatches >= 3:
+                raise Abort(
+                    "regulation",
+                    f"measured current {s.i:.4f} A, programmed {self._i_cmd:.4f} A, for 3 samples (t = {t:.3f} s)",
+                )
+        else:
+            self._mismatches = 0
+
+    def _check_protection(self, force: bool = False) -> None:
+        p = self._call("protection state", self.cycler.protection)
+        if p.tripped:
+            causes = ", ".join(sorted(p.causes)) or f"status {p.raw}"
+            extra = ""
+            if "INH" in p.causes:
+                try:
+                    alarms = self.chamber.alarms()
+                    extra = f"; chamber alarms: {alarms}" if alarms else ""
+                except InstrumentError:
+                    pass
+            raise Abort("protection", f"the cycler turned its output off: {causes}{extra}")
+
+    def _housekeeping(self, t: float) -> None:
+        if t >= self._next_chamber:
+            self._next_chamber = t + self.options.chamber_period_s
+            try:
+                self._T_amb_C = self._call("chamber read", self.chamber.read)
+            except Abort as exc:
+                if exc.kind == "instrument":
+                    raise Abort("chamber", exc.message) from None
+                raise
+        if t >= self._next_protection:
+            self._next_protection = t + self.options.protection_period_s
+            self._check_protection()
+
+    def _finish_ok(self) -> None:
+        self._call("output off", self.cycler.output, False)
+        self._output_on = False
+        self._call("current 0", self.cycler.set_current, 0.0)
+
+    def _summary(self) -> dict[str, Any]:
+        self.stats.resistance_ohm = self.resistance.r_ohm
+        out: dict[str, Any] = {
+            "steps": [*self.config.previous_steps, *self.step_records],
+            "stats": self.stats.to_dict(),
+            "identities": self.identities,
+            "rows": self._rows,
+        }
+        if self.shutdown is not None:
+            out["shutdown"] = self.shutdown.to_dict()
+        return out
+
+
+__all__ = ["Abort", "EngineConfig", "RunEngine", "RunState", "RunStats", "StopRequested"]

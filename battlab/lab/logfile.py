@@ -1,0 +1,120 @@
+"""The run log's columns, and reopening an interrupted log for a resume.
+
+A log left by a killed runner is readable (SWMR: :func:`battlab.io.logs.read_log`) but cannot be reopened for
+writing (HDF5 marks it still open; only ``h5clear`` would reset that). :func:`reopen` therefore keeps it as a
+backup (``run.interrupted-1.h5``), writes a fresh log at the same path with the same columns, copies every
+recovered row into it and flushes, then the run continues appending. :func:`drop_backups` removes the backups
+once the log has been closed cleanly and holds at least their rows. Nothing is deleted before that.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from battlab.io.data import AMBIENT, CURRENT, STEP, SURFACE, TIME, VOLTAGE, LoggedData
+from battlab.io.logs import LogWriter, open_log, read_log
+from protocols.errors import InputError
+
+log = logging.getLogger("battlab.lab")
+
+UNIX_TIME = "Unix Time / s"
+STEP_TIME = "Step Time / s"
+STEP_INDEX = "Step Index / 1"
+CYCLE = "Cycle Count / 1"
+
+#: the runner's columns (BDF names); Step Count counts step executions (a restarted step gets a new count),
+#: Step Index is the step's 1-based position in the plan, Cycle Count the trial of a repeated profile
+COLUMNS: tuple[str, ...] = (TIME, UNIX_TIME, STEP_TIME, VOLTAGE, CURRENT, SURFACE, AMBIENT, STEP, STEP_INDEX, CYCLE)
+
+
+def create(path: str | Path, columns: Sequence[str], meta: Mapping[str, Any]) -> LogWriter:
+    """A new run log (an existing file is an error: logs are never overwritten)."""
+    return open_log(path, list(columns), dict(meta), chunk_rows=4096)
+
+
+def backups(path: str | Path) -> list[Path]:
+    """Backups of interrupted logs of ``path``, oldest first."""
+    path = Path(path)
+    found = []
+    for p in path.parent.glob(f"{path.stem}.interrupted-*{path.suffix}"):
+        tag = p.name[len(path.stem) + len(".interrupted-") : len(p.name) - len(path.suffix)]
+        if tag.isdigit():
+            found.append((int(tag), p))
+    return [p for _, p in sorted(found)]
+
+
+def recover(path: str | Path) -> LoggedData | None:
+    """The most complete readable copy of an interrupted log: ``path`` or one of its backups (None: nothing)."""
+    best: LoggedData | None = None
+    for candidate in [*backups(path), Path(path)]:
+        if not candidate.is_file():
+            continue
+        try:
+            data = read_log(candidate)
+        except InputError as exc:
+            log.warning("resume: %s is not readable (%s)", candidate, exc)
+            continue
+        if best is None or len(data) >= len(best):
+            best = data
+    return best
+
+
+def reopen(path: str | Path, meta: Mapping[str, Any]) -> tuple[LogWriter, LoggedData | None]:
+    """A writable log at ``path`` holding every row recovered from the interrupted one (see the module doc).
+
+    Returns the writer (rows copied and flushed) and the recovered data (None if there was no log yet).
+    """
+    path = Path(path)
+    old = recover(path)
+    if path.exists():
+        n = len(backups(path)) + 1
+        target = path.with_name(f"{path.stem}.interrupted-{n}{path.suffix}")
+        while target.exists():
+            n += 1
+            target = path.with_name(f"{path.stem}.interrupted-{n}{path.suffix}")
+        os.replace(path, target)
+        log.info("resume: kept the interrupted log as %s", target)
+    columns = list(old.columns) if old is not None else list(COLUMNS)
+    writer = create(path, columns, meta)
+    if old is not None and len(old):
+        writer.append(np.column_stack([old.columns[c] for c in columns]))
+        writer.flush()
+    return writer, old
+
+
+def drop_backups(path: str | Path) -> list[Path]:
+    """Remove the backups of a cleanly closed log that holds at least as many rows as each; returns them."""
+    path = Path(path)
+    data = read_log(path)
+    if not data.meta.get("complete"):
+        return []
+    removed = []
+    for b in backups(path):
+        try:
+            n = len(read_log(b))
+        except InputError:
+            continue
+        if n <= len(data):
+            b.unlink()
+            removed.append(b)
+    return removed
+
+
+__all__ = [
+    "COLUMNS",
+    "CYCLE",
+    "STEP_INDEX",
+    "STEP_TIME",
+    "UNIX_TIME",
+    "backups",
+    "create",
+    "drop_backups",
+    "recover",
+    "reopen",
+]
