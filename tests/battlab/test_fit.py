@@ -1,0 +1,83 @@
+"""Dynamic identification: forward model, weighted LM, convergence report, virtual-truth recovery and coverage."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import battlab
+from battlab import parameters as P
+from battlab.identify import fit as F
+from battlab.identify.forward import ForwardModel
+from battlab.identify.virtual import noise_free, synthesize
+from protocols.library import Library
+
+NAMES = ("R_s_n", "R_s_p", "D_s_p")
+IDS = (19, 37)  # 10-s and 100-s discharge pulse trains from SOC 0.8 (600 s each)
+
+
+@pytest.fixture(scope="module")
+def setup():
+    cell = battlab.Cell.load("nca18650")
+    truth = cell.with_values(**{n: P.SPECS[n].truth for n in NAMES})  # reduced problem: 3 parameters differ
+    fm = ForwardModel(cell)
+    lib = Library.build()
+    profs = [lib[i] for i in IDS]
+    clean = {p.id: noise_free(fm, truth, p, p.soc0) for p in profs}
+    return cell, truth, fm, profs, clean
+
+
+def test_forward_model_matches_simulate(setup) -> None:
+    cell, truth, fm, profs, _ = setup
+    out = fm.run(fm.theta_of(truth), profs[0], profs[0].soc0, sensitivities=["R_s_n", "D_s_p"])
+    res = battlab.simulate(truth, profs[0], sensitivities=["R_s_n", "D_s_p"])
+    np.testing.assert_allclose(out.voltage, res.voltage, atol=1e-12)
+    np.testing.assert_allclose(out.sensitivities, res.sensitivities, atol=1e-9)
+    with pytest.raises(battlab.InputError, match="non-dynamic"):
+        fm.theta_of(cell.with_values(L_n=80e-6))
+
+
+def test_fit_recovers_truth_and_reports(setup) -> None:
+    cell, truth, fm, profs, clean = setup
+    exps = [synthesize(fm, truth, p, p.soc0, seed=7 + k, clean=clean[p.id]) for k, p in enumerate(profs)]
+    res = F.fit(cell, exps, NAMES, forward=fm)
+    assert res.convergence.converged and res.convergence.cost < res.convergence.cost_start
+    assert res.statistics.valid and 0.7 < res.statistics.s2 < 1.3
+    for e in res.statistics.estimates:
+        assert e.covers(P.SPECS[e.name].truth), e
+    for e in exps:  # validation RMSE against the truth within 2x the noise level
+        assert res.rmse_mV[e.name] <= 2e3 * np.sqrt(e.variance[0]) + 1e-9
+    assert np.median(res.errors_after_mV) < np.median(res.errors_before_mV)
+    rep = res.report()
+    assert rep["converged"] and set(rep["estimates"]) == set(NAMES)
+
+
+def test_a_fit_that_does_not_converge_says_so(setup) -> None:
+    cell, truth, fm, profs, clean = setup
+    exps = [synthesize(fm, truth, profs[0], profs[0].soc0, seed=1, clean=clean[profs[0].id])]
+    res = F.fit(cell, exps, NAMES, forward=fm, options=F.Options(max_nfev=2))
+    assert not res.convergence.converged
+    assert "maximum number of iterations" in res.convergence.reason
+    assert res.convergence.cost <= res.convergence.cost_start  # best point, never worse than the start
+
+
+def test_groupwise_fit_is_cumulative(setup) -> None:
+    cell, truth, fm, profs, clean = setup
+    exps = [synthesize(fm, truth, p, p.soc0, seed=3 + k, clean=clean[p.id]) for k, p in enumerate(profs)]
+    stages = [F.Stage(("R_s_n", "R_s_p"), (exps[0],)), F.Stage(("D_s_p",), (exps[1],))]
+    res = F.fit_groupwise(cell, stages, forward=fm)
+    assert res[0].names == ("R_s_n", "R_s_p") and res[0].experiments == (exps[0].name,)
+    assert res[1].names == NAMES and res[1].experiments == (exps[0].name, exps[1].name)
+    assert all(res[1].statistics[n].covers(P.SPECS[n].truth) for n in NAMES)
+
+
+@pytest.mark.slow
+def test_interval_coverage_over_seeds(setup) -> None:
+    cell, truth, fm, profs, clean = setup
+    covered = []
+    for seed in range(20):
+        exps = [synthesize(fm, truth, p, p.soc0, seed=1000 * seed + k, clean=clean[p.id])
+                for k, p in enumerate(profs)]
+        res = F.fit(cell, exps, NAMES, forward=fm)
+        covered += [res.statistics[n].covers(P.SPECS[n].truth) for n in NAMES]
+    assert 0.90 <= np.mean(covered) <= 0.99, np.mean(covered)
