@@ -1,0 +1,120 @@
+"""Benchmark: full group-wise identification on the virtual truth, the conventional baseline, validation, coverage.
+
+    python benchmarks/bench_fit.py [--seeds 20] [--per-group 3] [--candidates 40] [--quick]
+
+Data from ``nca18650-true`` plus noise at the noise-model level; every fit starts from ``nca18650``. Prints the
+time of the full group-wise fit (target ≤ 10 min), the recovery table (truth, estimate, interval, covered?;
+parameters whose truth sits on a bound are excluded from coverage, as DESIGN.md says), the validation RMSE
+table (nominal, conventional, OED; against the noise-free truth), the interval coverage over seeds, and saves
+``coverage.png``. Profiles for the OED-like fit: the stand-in greedy D-optimal selection
+(:mod:`battlab.identify.selection`) from every ``len(library)/candidates``-th library profile.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+import battlab
+from battlab import parameters as P
+from battlab.identify import conventional
+from battlab.identify import fit as F
+from battlab.identify.forward import ForwardModel
+from battlab.identify.selection import greedy_d_optimal, information
+from battlab.identify.validation import discharge_profiles, format_table, rmse_table
+from battlab.identify.virtual import noise_free, synthesize
+from protocols.library import Library
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--per-group", type=int, default=3)
+    ap.add_argument("--candidates", type=int, default=40)
+    ap.add_argument("--quick", action="store_true", help="2 seeds, 2 profiles per group, 20 candidates")
+    a = ap.parse_args()
+    if a.quick:
+        a.seeds, a.per_group, a.candidates = 2, 2, 20
+    nominal, truth = battlab.Cell.load("nca18650"), battlab.Cell.load("nca18650-true")
+    fm = ForwardModel(nominal)
+    lib = Library.build()
+    t0 = time.perf_counter()
+    cands = list(lib)[:: max(len(lib) // a.candidates, 1)]
+    ok = [p for p in cands if fm.run(fm.theta_of(truth), p, p.soc0).ended_by is None]
+    groups = F.TABLE9_GROUPS
+    chosen: list[list] = []
+    used: set = set()
+    for g in groups:
+        info = information(fm, nominal, [p for p in ok if p.id not in used], g)
+        ids = greedy_d_optimal(info, a.per_group)
+        used |= set(ids)
+        chosen.append([lib[i] for i in ids])
+    print(f"selection (stand-in D-optimal) {time.perf_counter() - t0:.1f} s: "
+          + "; ".join(f"group {k + 1}: {[p.id for p in c]}" for k, c in enumerate(chosen)))
+    clean = {p.id: noise_free(fm, truth, p, p.soc0) for c in chosen for p in c}
+    val_profiles = discharge_profiles(truth) + [(p, p.soc0) for p in ok if p.id not in used][:4]
+
+    def run(seed: int, verbose: bool) -> tuple[list[F.FitResult], F.FitResult | None]:
+        stages = [F.Stage(g, tuple(synthesize(fm, truth, p, p.soc0, seed=seed * 10000 + int(p.id), clean=clean[p.id])
+                                   for p in c)) for g, c in zip(groups, chosen, strict=True)]
+        t1 = time.perf_counter()
+        res = F.fit_groupwise(nominal, stages, forward=fm, options=F.Options(max_nfev=30),
+                              progress=(lambda k, r: print(f"  stage {k}: {r.convergence.iterations} evaluations, "
+                                                           f"{r.convergence.seconds:.1f} s, {r.convergence.reason}"))
+                              if verbose else None)
+        if verbose:
+            print(f"full group-wise fit: {time.perf_counter() - t1:.1f} s (target <= 600 s)")
+        conv = None
+        if verbose:
+            cexps = conventional.virtual_experiments(fm, truth, seed=seed)
+            oed_h = sum(e.hours for s in stages for e in s.experiments)
+            print(f"conventional: {conventional.hours(cexps):.1f} test hours vs OED {oed_h:.1f} h")
+            conv = F.fit(nominal, cexps, P.NAMES, forward=fm, options=F.Options(max_nfev=30))
+            print(f"conventional fit: {conv.convergence.iterations} evaluations, {conv.convergence.seconds:.1f} s")
+        return res, conv
+
+    res, conv = run(0, True)
+    last = res[-1]
+    print("\nrecovery (seed 0): name, truth, estimate, 95 % interval, covered (truth on a bound: excluded)")
+    for e in last.statistics.estimates:
+        spec = P.SPECS[e.name]
+        on_bound = spec.truth in (spec.lower, spec.upper)
+        cov = "excluded" if on_bound else e.covers(spec.truth)
+        ci = f"[{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]" if e.ci95 else "none"
+        print(f"  {e.name:12s} {spec.truth:11.4g} {e.value:11.4g} {ci:26s} {cov} {e.at_bound or ''}")
+    if not last.statistics.valid:
+        print("  statistics:", last.statistics.reason)
+    vexps = [synthesize(fm, truth, p, s, seed=99, name=str(p.id)) for p, s in val_profiles]
+    cells = {"nominal": nominal, "conventional": conv.cell, "OED": last.cell}
+    table, _ = rmse_table(fm, cells, vexps)
+    print("\nvalidation RMSE against the noise-free truth\n" + format_table(table))
+    beats = all(table["OED"][n] < table["conventional"][n] for n in table["OED"])
+    noise = {e.name: 1e3 * np.sqrt(e.variance[0]) for e in vexps}
+    print(f"OED beats conventional on every profile: {beats}; OED RMSE <= 2x noise: "
+          f"{all(table['OED'][n] <= 2 * noise[n] for n in noise)}")
+    covered = []
+    for seed in range(1, a.seeds):
+        r, _ = run(seed, False)
+        for e in r[-1].statistics.estimates:
+            spec = P.SPECS[e.name]
+            if spec.truth not in (spec.lower, spec.upper) and e.ci95 is not None:
+                covered.append(e.covers(spec.truth))
+    if covered:
+        print(f"\ncoverage over {a.seeds - 1} more seeds: {np.mean(covered):.3f} ({sum(covered)}/{len(covered)})")
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(5, 3))
+        ax.bar(["covered", "missed"], [sum(covered), len(covered) - sum(covered)])
+        ax.set_title(f"95 % interval coverage {np.mean(covered):.1%}")
+        fig.tight_layout()
+        fig.savefig("coverage.png", dpi=100)
+        print("saved coverage.png")
+
+
+if __name__ == "__main__":
+    main()
