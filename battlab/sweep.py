@@ -305,7 +305,7 @@ class SensitivityStore:
             store._drop_partials()
             return store
         path.parent.mkdir(parents=True, exist_ok=True)
-        f = h5py.File(path, "w", libver="latest")
+        f = h5py.File(path, "w")
         f.attrs.update(
             {
                 "format": FORMAT,
@@ -329,10 +329,11 @@ class SensitivityStore:
     def open(cls, path: str | Path, *, check_model: bool = True) -> SensitivityStore:
         """Open a store for reading; one made by another model version is refused (``check_model``)."""
         store = cls._open(Path(path), "r")
-        if check_model and store.attrs["model_version"] != model_version():
+        made_by = store.attrs["model_version"]
+        if check_model and made_by != model_version():
             store.close()
             raise InputError(
-                f"{path}: made by {store.attrs['model_version']!r}, this is {model_version()!r}: "
+                f"{path}: made by {made_by!r}, this is {model_version()!r}: "
                 "its sensitivities are stale; rerun `battlab sensitivity`"
             )
         return store
@@ -592,7 +593,7 @@ def _windowed(submit: Callable[..., Any], tasks: Sequence[Task], window: int, wa
                 pending[submit(run_task, nxt)] = nxt
 
 
-def dask_executor(scheduler: str | Any) -> Executor:
+def dask_executor(scheduler: str | Any, timeout_s: float = 10.0) -> Executor:
     """Run tasks on a Dask distributed cluster (a scheduler address like ``tcp://host:8786`` or a Client)."""
 
     def run(tasks: Sequence[Task]) -> Iterator[Outcome]:
@@ -600,7 +601,7 @@ def dask_executor(scheduler: str | Any) -> Executor:
 
         own = not isinstance(scheduler, Client)
         try:
-            client = Client(scheduler, timeout="20s") if own else scheduler
+            client = Client(scheduler, timeout=f"{timeout_s}s") if own else scheduler
         except OSError as exc:
             raise InputError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
         try:
@@ -659,6 +660,7 @@ def sweep(
     library_path: str | None = None,
     progress: bool = True,
     on_written: Callable[[Outcome], None] | None = None,
+    connect_timeout_s: float = 10.0,
 ) -> SweepReport:
     """Simulate every profile (and the conventional tests) with sensitivities into the store ``out``.
 
@@ -691,7 +693,11 @@ def sweep(
         by_key = {(t.key, str(t.pid)): (w, p) for t, w, p in tasks}
         if tasks and scheduler is None:
             _warm(cell, config)
-        ex = dask_executor(scheduler) if scheduler is not None else local_executor(workers or os.cpu_count() or 1)
+        ex = (
+            dask_executor(scheduler, connect_timeout_s)
+            if scheduler is not None
+            else local_executor(workers or os.cpu_count() or 1)
+        )
         with _progress(progress, len(tasks), report.reused) as advance:
             for outcome in ex([t for t, _, _ in tasks]):
                 where, prof = by_key[(outcome.key, str(outcome.id))]

@@ -127,6 +127,8 @@ class NullDirection:
 
     def describe(self) -> str:
         v = self.vector
+        if self.eigenvalue == 0.0 and np.count_nonzero(v) == 1:
+            return f"{self.names[int(np.flatnonzero(v)[0])]} (no information at all: zero sensitivity in every profile)"
         terms = [f"{v[j]:+.3g}·{self.names[j]}" for j in np.argsort(-np.abs(v)) if abs(v[j]) >= 0.02]
         return f"[{' '.join(terms)}] (collinearity index {self.collinearity_index:.2g})"
 
@@ -221,6 +223,12 @@ def design_stage(
     cost = _costs(info, s)
     t0 = time.perf_counter()
     rel = relax.solve(Fi, M, c, cost=cost, budget=s.budget, solver=s.solver)
+    fo = _first_order_check(Fi, M, c, rel, s, cost)
+    best = rel
+    if fo.get("eta") is not None and fo["value"] > rel.value:  # keep the better relaxed optimum (reported)
+        best = relax.RelaxedResult(fo.pop("eta"), fo["value"], "pairwise Frank-Wolfe", "better than " + rel.solver, 0.0)
+    fo.pop("eta", None)
+    rel = best
     sel = rounding.round_largest(rel.eta, M, cost, s.budget)
     if sel.size < M:
         raise InputError(f"{what}: no {M} profiles fit the budget {s.budget:g} ({s.cost})")
@@ -243,7 +251,6 @@ def design_stage(
     v_sel = criteria.value(F_sel, c)
     relaxed_int = _integer_scale(rel.value, c, M, p)
     gap = relaxed_int - v_sel if c is not Criterion.A else (-v_sel) - (-relaxed_int)
-    fo = _first_order_check(Fi, M, c, rel, s, cost)
     return GroupDesign(
         index=index,
         parameters=list(params),
@@ -299,7 +306,7 @@ def _first_order_check(
     if c is Criterion.E or s.budget is not None:
         other = "SCS" if not rel.solver.upper().startswith("SCS") else "CLARABEL"
         try:
-            alt = relax.solve(Fi, M, c, cost=cost, budget=s.budget, solver=other, restrict=None)
+            alt = relax.solve(Fi, M, c, cost=cost, budget=s.budget, solver=other)
         except InputError as exc:
             return {"method": other, "error": str(exc)}
         rel_diff = abs(alt.value - rel.value) / max(abs(rel.value), 1e-300) if c is not Criterion.D else None
@@ -323,6 +330,7 @@ def _first_order_check(
             "seconds": fo.seconds,
             "d_efficiency": eff,
             "agree": bool(agree),
+            "eta": fo.eta,
         }
     rel_diff = abs(fo.value - rel.value) / abs(rel.value)
     F1, F2 = np.tensordot(fo.eta, Fi, axes=1), np.tensordot(rel.eta, Fi, axes=1)
@@ -335,6 +343,7 @@ def _first_order_check(
         "relative_difference": rel_diff,
         "d_efficiency": criteria.d_efficiency(F1, F2),
         "agree": bool(rel_diff <= 1e-4),
+        "eta": fo.eta,
     }
 
 
@@ -397,9 +406,17 @@ def design_groups(
 ) -> list[GroupDesign]:
     """One design per group; with ``settings.cumulative`` group k uses the parameters of groups 1..k."""
     s = settings or Settings()
-    for g in groups:
+    seen: set[str] = set()
+    for k, g in enumerate(groups, start=1):
+        if not g:
+            raise InputError(f"group {k} is empty")
         for n in g:
             parameters.spec(n)
+            if n not in info.names:
+                raise InputError(f"group {k}: parameter {n!r} has no sensitivities in the store")
+            if n in seen:
+                raise InputError(f"parameter {n!r} appears more than once in the groups (again in group {k})")
+            seen.add(n)
     Fi = info.F
     out, acc = [], []
     for k, g in enumerate(groups, start=1):

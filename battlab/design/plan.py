@@ -38,8 +38,8 @@ class PlanFiles:
     sidecar: Path
 
 
-def _library_ref(store: SensitivityStore, profiles: Sequence[Profile], plan_dir: Path) -> str | None:
-    """The library path to write in the plan, if the library file holds exactly these profiles."""
+def _library_ref(store: SensitivityStore, profiles: Sequence[Profile], plan_dir: Path) -> tuple[str, Any] | None:
+    """(path to write in the plan, the Library) if the library file holds exactly these profiles, else None."""
     lib_path = store.attrs.get("library_path") or ""
     if not lib_path or not Path(lib_path).is_file():
         return None
@@ -53,9 +53,9 @@ def _library_ref(store: SensitivityStore, profiles: Sequence[Profile], plan_dir:
         if p.id not in lib or profile_hash(lib[p.id]) != profile_hash(p):
             return None
     try:
-        return os.path.relpath(lib_path, plan_dir)
+        return os.path.relpath(lib_path, plan_dir), lib
     except ValueError:  # another drive (Windows)
-        return str(lib_path)
+        return str(lib_path), lib
 
 
 def _protocol(name: str, groups: Sequence[tuple[int, list[Profile]]], description: str) -> Protocol:
@@ -114,7 +114,8 @@ def write_plan(
     out.parent.mkdir(parents=True, exist_ok=True)
     per_group = [(d.index, [store.profile(pid) for pid in d.selected]) for d in designs]
     all_profiles = [p for _, ps in per_group for p in ps]
-    ref = _library_ref(store, all_profiles, out.parent)
+    found = _library_ref(store, all_profiles, out.parent)
+    ref, lib = found if found is not None else (None, None)
     cell = store.attrs["cell_name"]
     desc = (
         f"{criterion}-optimal plan for cell {cell}: "
@@ -130,7 +131,7 @@ def write_plan(
             _protocol(f"OED group {g} ({criterion}-optimal, {cell})", [(g, ps)], f"group {g}: {d.parameters}"), gp, ref
         )
         group_paths.append(gp)
-    _check_round_trip(out, all_profiles)
+    _check_round_trip(out, all_profiles, lib)
     data = summary(
         designs,
         criterion,
@@ -152,9 +153,9 @@ def write_plan(
     return PlanFiles(out, tuple(group_paths), sp, side)
 
 
-def _check_round_trip(path: Path, profiles: Sequence[Profile]) -> None:
+def _check_round_trip(path: Path, profiles: Sequence[Profile], library: Any = None) -> None:
     """The plan must load with :meth:`Protocol.load` and carry exactly the selected profiles."""
-    proto = Protocol.load(path)
+    proto = Protocol.load(path, library=library)
     got = [s.profile for s in proto.steps if isinstance(s, ProfileStep)]
     if len(got) != len(profiles) or any(
         profile_hash(a.with_meta(soc0=b.soc0)) != profile_hash(b) for a, b in zip(got, profiles, strict=True)

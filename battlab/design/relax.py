@@ -5,7 +5,7 @@ maximise φ(Σ η_i F_i) subject to 0 ≤ η_i ≤ 1/M, Σ η_i = 1 and optional
 parameter with a narrow range, like t_c⁰, has tiny θ̄-sensitivities) and some parameters are nearly collinear, so
 the problem is posed on the congruent matrices F̃_i = Tᵀ F_i T that whiten the candidates' mean information
 (:func:`whitening`); each criterion is rewritten exactly: log det F = log det F̃ − 2 log |det T|;
-tr F⁻¹ = matrix_frac(Tᵀ, F̃); λ_min(F) ≥ t ⇔ F̃ − t TᵀT ⪰ 0.
+tr F⁻¹ = matrix_frac(Tᵀ, F̃); λ_min(F) ≥ t ⇔ F̃ − t TᵀT ⪰ 0 (A and E objectives further scaled to order one).
 """
 
 from __future__ import annotations
@@ -72,15 +72,18 @@ def _solve_restricted(
     if c is Criterion.D:
         obj = cp.Maximize(cp.log_det(X))
     elif c is Criterion.A:
-        obj = cp.Minimize(cp.matrix_frac(T.T, X))
+        a = float(np.trace(T @ T.T))  # tr F⁻¹ / a is of order one (solver tolerances are absolute)
+        obj = cp.Minimize(cp.matrix_frac(T.T / np.sqrt(a), X))
     else:
-        t = cp.Variable()
-        cons.append(X - t * (T.T @ T) >> 0)
+        t = cp.Variable()  # λ_min(F) / b with b = λ_min(F̄): of order one
+        TT = T.T @ T
+        TT = (TT + TT.T) / 2
+        cons.append(X - t * (TT / np.linalg.eigvalsh(TT)[-1]) >> 0)
         obj = cp.Maximize(t)
     prob = cp.Problem(obj, cons)
     for name in order:
         try:
-            kw = {"max_iters": 50000, "eps": 1e-8} if name == "SCS" else {}
+            kw = {"max_iters": 20000, "eps": 1e-7} if name == "SCS" else {}
             with warnings.catch_warnings():  # an inaccurate solution is reported through its status
                 warnings.simplefilter("ignore", UserWarning)
                 prob.solve(solver=name, **kw)
@@ -116,8 +119,9 @@ def certificate(
     cost: np.ndarray | None = None,
     budget: float | None = None,
     M: int = 1,
-) -> tuple[float, np.ndarray]:
-    """(gap, g): φ* − φ(η) ≤ gap = max_s gᵀ(s − η) over the feasible set (concavity; g a supergradient)."""
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """(gap, g, s): φ* − φ(η) ≤ gap = gᵀ(s − η), s the best vertex of the feasible set for the supergradient g
+    (concavity)."""
     from battlab.design.firstorder import best_vertex
 
     F = np.tensordot(eta, Fi, axes=1)
@@ -137,7 +141,7 @@ def certificate(
             method="highs",
         )
         s = res.x if res.status == 0 else eta
-    return float(g @ (s - eta)), g
+    return float(g @ (s - eta)), g, s
 
 
 def solve(
@@ -181,6 +185,7 @@ def solve(
         first = set(np.argsort(-own)[:restrict].tolist()) | set(np.flatnonzero(lo > 0).tolist())
         cand = np.array(sorted(first))
     rounds = 0
+    previous = -np.inf
     while True:
         rounds += 1
         got = _solve_restricted(Ft, T, M, c, cand, up, lower if lower is None else lo, cost, budget, order, errors)
@@ -191,8 +196,13 @@ def solve(
         e /= e.sum()
         if cand.size == n:
             break
-        gap, g = certificate(e, Ft, c, lo, up, cost, budget, M)
-        F = np.tensordot(e, Ft, axes=1)
+        now = criteria.value(np.tensordot(e, Fi, axes=1), c)
+        if c is Criterion.E and now <= previous + 1e-6 * abs(previous):
+            break  # λ_min is not smooth: a supergradient certificate may never close; stop when adding stalls
+        previous = now
+        # D is invariant under the congruence (up to a constant); A and E are not: certify on the original F_i
+        gap, g, vertex = certificate(e, Ft if c is Criterion.D else Fi, c, lo, up, cost, budget, M)
+        F = np.tensordot(e, Fi, axes=1)
         scale = 1.0 if c is Criterion.D else max(abs(criteria.value(F, c)), 1e-300)
         if gap <= tol * scale:
             break
@@ -200,8 +210,13 @@ def solve(
         inside[cand] = True
         free = inside & (e > lo + 1e-9) & (e < up - 1e-9)
         tau = float(np.min(g[free])) if free.any() else float(np.min(g[inside & (e > lo + 1e-9)]))
-        add = np.flatnonzero(~inside & (g > tau))
+        add = np.flatnonzero(~inside & ((g > tau) | (vertex > 0)))
         if add.size == 0:
+            status += (
+                ", the λ_min supergradient certificate is inconclusive (nonsmooth)"
+                if c is Criterion.E
+                else ", certificate not met: the working set's solution is inaccurate"
+            )
             break
         add = add[np.argsort(-g[add])][: max(restrict or 0, 16)]
         cand = np.union1d(cand, add)

@@ -1,0 +1,151 @@
+"""`battlab sensitivity`, `battlab groups`, `battlab design` end to end on a few short library profiles."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from battlab import parameters
+from battlab.cli import main
+from protocols import Library, ProfileStep, Protocol
+
+IDS = "28,37,136,541,553,583"  # 600 s profiles (pulses and sines from four start SOCs)
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("cli")
+    Library.build().save(d / "library.h5")
+    r = CliRunner().invoke(
+        main,
+        [
+            "sensitivity",
+            str(d / "library.h5"),
+            "--cell",
+            "nca18650",
+            "-o",
+            str(d / "sens.h5"),
+            "--ids",
+            IDS,
+            "--workers",
+            "1",
+            "--no-conventional",
+            "--no-progress",
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    return d
+
+
+def test_sensitivity_writes_store_and_summary(workdir: Path) -> None:
+    s = json.loads((workdir / "sens.summary.json").read_text())
+    assert s["total"] == 6 and s["computed"] == 6 and s["ok"] + s["flagged"] + s["failed"] == 6
+    r = CliRunner().invoke(
+        main,
+        [
+            "sensitivity",
+            str(workdir / "library.h5"),
+            "--cell",
+            "nca18650",
+            "-o",
+            str(workdir / "sens.h5"),
+            "--ids",
+            IDS,
+            "--workers",
+            "1",
+            "--no-conventional",
+            "--no-progress",
+        ],
+    )
+    assert r.exit_code == 0 and json.loads((workdir / "sens.summary.json").read_text())["reused"] == 6
+
+
+def test_groups_table_json_and_figure(workdir: Path) -> None:
+    out = workdir / "groups"
+    r = CliRunner().invoke(main, ["groups", str(workdir / "sens.h5"), "-k", "3", "--no-perturb", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "paper" in r.output and "collinearity" in r.output
+    data = json.loads((out / "sens.groups.json").read_text())
+    assert len(data["groups"]) == 3
+    assert sorted(n for g in data["groups"] for n in g) == sorted(parameters.NAMES)
+    assert (out / "sens.ranking.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert len(data["ranking"]["order_mean"]) == 18
+
+
+def test_design_writes_a_loadable_plan_and_the_summary_contract(workdir: Path) -> None:
+    plan = workdir / "out" / "plan.toml"
+    r = CliRunner().invoke(main, ["design", str(workdir / "sens.h5"), "-o", str(plan), "-M", "2", "-k", "2"])
+    assert r.exit_code == 0, r.output
+    summary = json.loads((plan.parent / "summary.json").read_text())
+    assert summary["criterion"] == "D" and summary["solve_seconds"] > 0
+    assert len(summary["groups"]) == 2
+    for g in summary["groups"]:
+        assert {"parameters", "selected", "logdet"} <= set(g)
+        assert len(g["selected"]) == 2 and all(str(i) in IDS.split(",") for i in g["selected"])
+        assert g["first_order"]["agree"]
+    assert len(summary["groups"][1]["parameters"]) == 18  # cumulative
+    proto = Protocol.load(plan)
+    ids = [s.profile.id for s in proto.steps if isinstance(s, ProfileStep)]
+    assert ids == [i for g in summary["groups"] for i in g["selected"]]
+    lib = Library.load(workdir / "library.h5")
+    first = next(s.profile for s in proto.steps if isinstance(s, ProfileStep))
+    assert (first.current == lib[first.id].current).all()
+    for k in (1, 2):
+        assert Protocol.load(plan.with_name(f"plan.group{k}.toml")).profile_duration_s == 1200.0
+    assert (plan.parent / "plan.design.json").is_file() and plan.with_suffix(".weights.png").is_file()
+
+
+def test_design_with_a_criterion_and_a_budget(workdir: Path) -> None:
+    plan = workdir / "a" / "plan.toml"
+    r = CliRunner().invoke(
+        main,
+        [
+            "design",
+            str(workdir / "sens.h5"),
+            "-o",
+            str(plan),
+            "-M",
+            "2",
+            "-k",
+            "1",
+            "--criterion",
+            "A",
+            "--budget",
+            "1300",
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    s = json.loads((plan.parent / "summary.json").read_text())
+    assert s["criterion"] == "A" and s["budget"] == 1300
+    assert s["groups"][0]["cost_total"] <= 1300
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["design", "missing.h5", "-o", "p.toml"], "no such sensitivity store"),
+        (["design", "{lib}", "-o", "p.toml"], "not a battlab sensitivity store"),
+        (["design", "{sens}", "-o", "{dir}/p.txt", "-k", "1", "-M", "2"], "the plan is a .toml file"),
+        (["design", "{sens}", "-o", "{dir}/p.toml", "--groups", "{groups}"], "appears more than once"),
+        (["design", "{sens}", "-o", "{dir}/p.toml", "-M", "7"], "only 6 usable profiles"),
+        (["sensitivity", "{lib}", "--cell", "nosuchcell", "-o", "{dir}/x.h5"], "not a built-in cell"),
+        (["sensitivity", "{lib}", "--cell", "nca18650", "-o", "{dir}/x.h5", "--ids", "9999"], "no profile(s) with id"),
+        (["sensitivity", "{lib}", "--cell", "nca18650-true", "-o", "{sens}", "--ids", "28"], "refusing to add"),
+    ],
+)
+def test_user_errors_are_one_line(workdir: Path, args: list[str], message: str) -> None:
+    bad_groups = workdir / "dup.json"
+    bad_groups.write_text(json.dumps({"groups": [["R_s_n", "k_n"], ["k_n"]]}))
+    fill = {
+        "lib": str(workdir / "library.h5"),
+        "sens": str(workdir / "sens.h5"),
+        "dir": str(workdir),
+        "groups": str(bad_groups),
+    }
+    r = CliRunner().invoke(main, [a.format(**fill) for a in args])
+    assert r.exit_code == 2, r.output
+    err = r.stderr.strip()
+    assert message in err and len(err.splitlines()) == 1
