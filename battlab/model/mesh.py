@@ -22,7 +22,7 @@ class Mesh:
     n_n: int = 10
     n_s: int = 6
     n_p: int = 10
-    n_r: int = 10
+    n_r: int = 12
     grading: float = 1.0
 
     def __post_init__(self) -> None:

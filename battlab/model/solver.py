@@ -448,21 +448,24 @@ def run_native(
     nx, ns = lay.nx, len(sel)
     sch = schedule(t, I_dis, float(model.cell["Q_nom"]), settings)
     n_samp = len(t)
-    # a zero-length first step finds the consistent algebraic state at t = 0 (and writes sample 0)
-    h = np.concatenate([[0.0], sch.h])
-    w = np.concatenate([[0.0], sch.w])
-    cur = np.concatenate([[I_dis[0]], sch.current])
+    # zero-length first steps find the consistent algebraic state at t = 0 by continuation in the current
+    # from rest (where the equilibrium guess is exact), the last one writes sample 0
+    ramp = I_dis[0] * np.array([0.0, 0.125, 0.25, 0.5, 1.0])
+    n0 = ramp.size
+    h = np.concatenate([np.zeros(n0), sch.h])
+    w = np.concatenate([np.zeros(n0), sch.w])
+    cur = np.concatenate([ramp, sch.current])
     out_idx = np.full(h.size, -1, dtype=np.int32)
     out_I = np.zeros(h.size)
-    out_idx[0], out_I[0] = 0, I_dis[0]
-    out_idx[sch.sample_step + 1] = np.arange(1, n_samp)
-    out_I[sch.sample_step + 1] = I_dis[1:]
+    out_idx[n0 - 1], out_I[n0 - 1] = 0, I_dis[0]
+    out_idx[sch.sample_step + n0] = np.arange(1, n_samp)
+    out_I[sch.sample_step + n0] = I_dis[1:]
     out = np.full((n_samp, 5), np.nan)
     outdV = np.full((n_samp, max(ns, 1)), np.nan)
     outdT2 = np.full((n_samp, max(ns, 1)), np.nan)
     th = np.asarray(theta_bar, float)
     x0 = initial_state(model, soc0, th, T0)
-    y = np.concatenate([x0, guess_algebraic(model, x0, I_dis[0])])
+    y = np.concatenate([x0, guess_algebraic(model, x0, 0.0)])
     xp = x0.copy()
     S = np.zeros((nx, ns))  # C layout: row-major, S[i, j] = dx_i/dθ̄_sel[j]
     if ns:
@@ -493,8 +496,12 @@ def run_native(
             k = int(out_idx[pos - 1])
             ended_by = _check(k, out[:, 0], out[:, 2], out[:, 3], out[:, 4], limits)
             break
-        # a failed step: y, xp, S, Sp hold the last converged state
-        if code == -2 and reanalysed != pos:
+        if code == -4:
+            ended_by = f"solver: no right-limit solution at t = {float(np.sum(h[:pos])):.6g} s"
+            break
+        # a failed step: y, xp, S, Sp hold the last converged state; first a pivot order for this state,
+        # then smaller steps
+        if reanalysed != pos:
             stepper.analyse_at(y, y[:nx], xp, np.array([max(h[pos], 1e-3), w[pos], cur[pos], T_amb]), th)
             reanalysed = pos
             continue
@@ -514,8 +521,8 @@ def run_native(
     # samples written before the stop
     written = out_idx[:pos][out_idx[:pos] >= 0]
     n_keep = int(written.max()) + 1 if written.size else 0
-    if ended_by is not None and ended_by.startswith(("V ", "T_", "surface")):
-        n_keep -= 1  # the sample beyond the limit is not part of the result
+    if ended_by is not None and ended_by.startswith(("V ", "T_", "surface", "solver: no right-limit")):
+        n_keep -= 1  # the sample beyond the limit (or without a solution) is not part of the result
     V, T1, T2, smin, smax = (out[:n_keep, j] for j in range(5))
     return Trajectory(
         V, T1, T2, smin, smax,

@@ -64,11 +64,16 @@ static void call5(int (*f)(const casadi_real **, casadi_real **, casadi_int *, c
 /* numeric LU on the fixed program; returns 0 or -1 on a tiny pivot */
 static int lu_factor(const Problem *P, const double *jnz, double *a) {
   int k, l, u, o = 0;
+  double anorm = 0.0;
   memset(a, 0, sizeof(double) * P->nslot);
-  for (k = 0; k < P->jac_nnz; ++k) a[P->jac2slot[k]] = jnz[k];
+  for (k = 0; k < P->jac_nnz; ++k) {
+    a[P->jac2slot[k]] = jnz[k];
+    if (fabs(jnz[k]) > anorm) anorm = fabs(jnz[k]);
+  }
   for (k = 0; k < P->n; ++k) {
     double p = a[P->piv[k]];
-    if (!(fabs(p) > 1e-300) || !isfinite(p)) return -1;
+    /* a pivot that (nearly) vanished: the stored pivot order no longer suits this matrix */
+    if (!(fabs(p) > 1e-14 * anorm) || !isfinite(p)) return -1;
     for (l = P->lptr[k]; l < P->lptr[k + 1]; ++l) a[P->lslot[l]] /= p;
     for (l = P->lptr[k]; l < P->lptr[k + 1]; ++l) {
       double lik = a[P->lslot[l]];
@@ -131,19 +136,21 @@ static double norm_inf(const double *v, int n) {
   return m;
 }
 
-/* Newton for one step from the guess in ynew. lu/fresh: the chord matrix and whether it is current.
- * Returns iterations (>= 0) or -1 (no convergence), -2 (singular). */
+/* Newton for one step from the guess in ynew. lu/have_lu: the chord matrix and whether there is one.
+ * R, yt, Rt, c: work [n]. Returns iterations (>= 0) or -1 (no convergence), -2 (singular). */
 static int newton(const Problem *P, double *ynew, const double *xn, const double *xp, const double *u,
-                  const double *th, double *lu, int *have_lu, double *R, double *jnz, double *c,
-                  double tol, int maxit) {
-  int it, njac = 0, fresh_last = 0;
-  double prev = INFINITY, dy = INFINITY;
+                  const double *th, double *lu, int *have_lu, double *R, double *yt, double *Rt, double *jnz,
+                  double *c, double tol, int maxit) {
+  int it, njac = 0, fresh_last = 0, i;
+  double prev = INFINITY, dy = INFINITY, r;
+  call5(bl_res, ynew, xn, xp, u, th, R, 0);
+  r = norm_inf(R, P->n);
   for (it = 0; it < maxit; ++it) {
-    double r, scale;
-    call5(bl_res, ynew, xn, xp, u, th, R, 0);
-    r = norm_inf(R, P->n);
+    double scale, lam = 1.0, rt = INFINITY;
+    int fresh = 0;
 #ifdef BL_DEBUG
-    fprintf(stderr, "newton it %d r %.3e dy %.3e h %g have_lu %d njac %d\n", it, r, dy, u[0], *have_lu, njac);
+    fprintf(stderr, "newton it %d r %.3e dy %.3e h %g I %g have_lu %d njac %d\n", it, r, dy, u[0], u[2], *have_lu,
+            njac);
 #endif
     if (!isfinite(r)) return -1;
     if (r < 1e-13) return it;
@@ -152,20 +159,35 @@ static int newton(const Problem *P, double *ynew, const double *xn, const double
        O(dy^2); after a chord update it is O(rate dy); or the residual sits at its round-off floor */
     scale = 1.0 + norm_inf(ynew, P->n);
     if (r < tol && (dy < (fresh_last ? 1e-6 : 1e-11) * scale || r > 0.5 * prev)) return it;
+    /* the update no longer moves the solution: the residual is at its round-off floor */
+    if (dy < 1e-13 * scale && r < 1e3 * tol) return it;
     /* chord iterations on the last factorisation while they contract fast, else a fresh Jacobian */
-    fresh_last = 0;
     if (!*have_lu || (it > 0 && r > 0.03 * prev && r >= tol)) {
-      if (njac >= 6) return -1;
+      if (njac >= 8) return -1;
       call5(bl_jac, ynew, xn, xp, u, th, jnz, 0);
       if (lu_factor(P, jnz, lu)) { *have_lu = 0; return -2; }
       *have_lu = 1;
-      fresh_last = 1;
+      fresh = 1;
       ++njac;
     }
-    prev = r;
-    lu_solve(P, lu, R, c);
+    lu_solve(P, lu, R, c); /* R now holds the full step */
     dy = norm_inf(R, P->n);
-    for (int i = 0; i < P->n; ++i) ynew[i] -= R[i];
+    /* backtracking on the residual norm with a fresh Jacobian (a chord step that does not contract is
+       accepted and triggers a fresh Jacobian next time) */
+    for (int ls = 0; ls < 8; ++ls) {
+      for (i = 0; i < P->n; ++i) yt[i] = ynew[i] - lam * R[i];
+      call5(bl_res, yt, xn, xp, u, th, Rt, 0);
+      rt = norm_inf(Rt, P->n);
+      if (isfinite(rt) && (!fresh || rt < r || r < tol)) break;
+      lam *= 0.5;
+    }
+    if (!isfinite(rt)) return -1;
+    memcpy(ynew, yt, sizeof(double) * P->n);
+    memcpy(R, Rt, sizeof(double) * P->n);
+    prev = r;
+    r = rt;
+    dy *= lam;
+    fresh_last = fresh && lam == 1.0;
   }
   return -1;
 }
@@ -215,7 +237,8 @@ static void output(const Problem *P, const double *y, const double *u, const dou
 /* Run steps [0, nsteps). State in/out: y[n], xp[nx], S[nx*ns], Sp[nx*ns] (column-major per parameter),
  * Sy[n*ns] work/out; sensitivity arrays row-major (S[i*ns + j]). sched: h, w, I per step; out_idx[k] >= 0: write sample out_idx[k] after step k with the
  * right-limit current out_I[k]. Returns nsteps on success, else the index of the failed step (and *code:
- * -1 Newton, -2 singular), or the number of steps done when a sample broke a limit (*code = 1). */
+ * -1 Newton, -2 singular), or the number of steps done when a sample broke a limit (*code = 1) or its
+ * right-limit solve failed (*code = -4). */
 int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const double *I, const double *Tamb,
            const int *out_idx, const double *out_I, const double *th, const int *sel, int ns, double tol,
            int maxit, const double *limits, double *y, double *xp, double *S, double *Sp, double *Sy, double *out, double *outdV,
@@ -223,6 +246,7 @@ int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const
   int n = P->n, nx = P->nx, k, have_lu = 0, have_lu0 = 0;
   size_t nsx = (size_t)nx * (ns > 0 ? ns : 1);
   double *ynew = malloc(sizeof(double) * n), *R = malloc(sizeof(double) * n);
+  double *yt = malloc(sizeof(double) * n), *Rt = malloc(sizeof(double) * n);
   double *c = malloc(sizeof(double) * (size_t)n * (ns > 0 ? ns : 1));
   double *xn = malloc(sizeof(double) * nx), *jnz = malloc(sizeof(double) * (P->jac_nnz + 1));
   double *jth = malloc(sizeof(double) * (P->jth_nnz + 1));
@@ -250,7 +274,7 @@ int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const
       memcpy(ynew, y, sizeof(double) * n);
     }
     have_right = 0;
-    it = newton(P, ynew, xn, xp, u, th, lu, &have_lu, R, jnz, c, tol, maxit);
+    it = newton(P, ynew, xn, xp, u, th, lu, &have_lu, R, yt, Rt, jnz, c, tol, maxit);
     if (it < 0) { *code = it; ret = k; break; }
     *iters += it;
     if (ns) {
@@ -272,8 +296,18 @@ int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const
         /* right limit: algebraic re-solve with the new current (a zero-length step) */
         double u0[4] = {0.0, 0.0, out_I[k], Tamb[k]};
         memcpy(y0, y, sizeof(double) * n);
-        it = newton(P, y0, y, xp, u0, th, lu0, &have_lu0, R, jnz, c, tol, maxit);
-        if (it < 0) { *code = it; ret = k; break; }
+        it = newton(P, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
+        if (it < 0) {
+          /* a large current step: continuation in the current from the left limit */
+          memcpy(y0, y, sizeof(double) * n);
+          for (int q = 1; q <= 8; ++q) {
+            u0[2] = I[k] + (out_I[k] - I[k]) * q / 8.0;
+            it = newton(P, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
+            if (it < 0) break;
+          }
+        }
+        /* the step itself converged: the state has advanced, so a failure here ends the run */
+        if (it < 0) { *code = -4; ret = k + 1; break; }
         if (ns) {
           if (sens(P, y0, y, xp, u0, th, sel, ns, S, Sp, Sy0, lu0, jnz, jth, c)) { *code = -2; ret = k; break; }
           have_lu0 = 1;
@@ -289,7 +323,7 @@ int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const
       }
     }
   }
-  free(ynew); free(R); free(c); free(xn); free(jnz); free(jth); free(lu); free(lu0); free(y0); free(yprev);
+  free(ynew); free(R); free(yt); free(Rt); free(c); free(xn); free(jnz); free(jth); free(lu); free(lu0); free(y0); free(yprev);
   free(Sy0); free(vy); free(vth);
   return ret;
 }
