@@ -561,14 +561,25 @@ class RunEngine:
         p = self._call("protection state", self.cycler.protection)
         if p.tripped:
             causes = ", ".join(sorted(p.causes)) or f"status {p.raw}"
-            extra = ""
-            if "INH" in p.causes:
-                try:
-                    alarms = self.chamber.alarms()
-                    extra = f"; chamber alarms: {alarms}" if alarms else ""
-                except InstrumentError:
-                    pass
-            raise Abort("protection", f"the cycler turned its output off: {causes}{extra}")
+            raise Abort("protection", f"the cycler turned its output off: {causes}{self._context(p.causes)}")
+
+    def _context(self, causes: frozenset[str] = frozenset()) -> str:
+        """What the instruments say now, for an abort reason (never raises)."""
+        parts = []
+        try:
+            m = self.cycler.measure()
+            T = f", T {m.temperature_K - 273.15:.1f} degC" if m.temperature_K is not None else ""
+            parts.append(f"after it: V {m.voltage_V:.4f} V, I {m.current_A:+.4f} A{T}")
+        except (InstrumentError, OSError):
+            pass
+        if "INH" in causes:
+            try:
+                alarms = self.chamber.alarms()
+                if alarms:
+                    parts.append(f"chamber alarms: {alarms}")
+            except (InstrumentError, OSError):
+                pass
+        return f" ({'; '.join(parts)})" if parts else ""
 
     def _housekeeping(self, t: float) -> None:
         if t >= self._next_chamber:
@@ -576,9 +587,16 @@ class RunEngine:
             try:
                 self._T_amb_C = self._call("chamber read", self.chamber.read)
             except Abort as exc:
-                if exc.kind == "instrument":
-                    raise Abort("chamber", exc.message) from None
-                raise
+                if exc.kind != "instrument":
+                    raise
+                extra = ""
+                try:
+                    p = self.cycler.protection()
+                    if p.tripped:
+                        extra = f"; the cycler turned its output off: {', '.join(sorted(p.causes))}"
+                except (InstrumentError, OSError):
+                    pass
+                raise Abort("chamber", exc.message + extra) from None
         if t >= self._next_protection:
             self._next_protection = t + self.options.protection_period_s
             self._check_protection()

@@ -10,9 +10,11 @@ The engine drives an executor through one protocol per step::
 Constant voltage is **regulated by the runner** (the virtual cycler and current-priority supplies do not regulate
 voltage in current mode; reaching their voltage limit trips the output off): at every sample the programmed current
 moves by ``gain × (V_target − V) / R``, clamped to the step's direction and current bound, with ``R`` the cell's
-resistance as seen at the sample period, estimated from the current steps of the run (:class:`ResistanceEstimate`).
-The voltage therefore settles within a few samples; between samples the current is held. A CCCV step's CC phase
-ends at the first sample past its voltage; its current end condition applies in the CV phase only.
+resistance as seen at the sample period, estimated from the current steps of the run (:class:`ResistanceEstimate`),
+and by at most half the step's current bound per sample. The voltage settles within a few samples; between samples
+the current is held. A current end condition (the CV taper) counts only while the voltage is held within
+``CV_SETTLED_V`` of the target, so a regulation transient does not end the step. A CCCV step's CC phase ends at the
+first sample past its voltage.
 """
 
 from __future__ import annotations
@@ -52,7 +54,7 @@ class ResistanceEstimate:
     """The cell's resistance at the sample period: ΔV/ΔI over consecutive samples whose current changed by more
     than ``min_step_A``, averaged exponentially; starts at ``r0_ohm``, kept within [``lo``, ``hi``]."""
 
-    def __init__(self, r0_ohm: float = 0.05, *, min_step_A: float = 0.2, lo: float = 0.002, hi: float = 2.0) -> None:
+    def __init__(self, r0_ohm: float = 0.05, *, min_step_A: float = 0.02, lo: float = 0.002, hi: float = 2.0) -> None:
         self.r_ohm = r0_ohm
         self.min_step_A = min_step_A
         self.lo, self.hi = lo, hi
@@ -155,6 +157,12 @@ class CCExecutor(StepExecutor):
         return self.current
 
 
+#: a CV phase's current end condition counts only while the voltage is held within this band (V)
+CV_SETTLED_V = 0.01
+#: the regulator moves the current by at most this fraction of its bound per sample
+CV_MAX_STEP = 0.5
+
+
 class CVRegulator:
     """Integral regulation of the current towards a voltage (see the module docstring)."""
 
@@ -173,8 +181,13 @@ class CVRegulator:
         self.current = self.clamp(i0)
 
     def update(self, v: float) -> float:
-        self.current = self.clamp(self.current + self.gain * (self.target_V - v) / self.resistance.r_ohm)
+        step = self.gain * (self.target_V - v) / self.resistance.r_ohm
+        bound = CV_MAX_STEP * self.i_max
+        self.current = self.clamp(self.current + min(max(step, -bound), bound))
         return self.current
+
+    def settled(self, v: float) -> bool:
+        return abs(v - self.target_V) <= CV_SETTLED_V
 
 
 class CVExecutor(StepExecutor):
@@ -193,6 +206,11 @@ class CVExecutor(StepExecutor):
 
     def command(self, t: float) -> float:
         return self.reg.update(self._v) if self._v is not None else self.reg.current
+
+    def active_ends(self) -> tuple[EndCondition, ...]:
+        if self._v is not None and self.reg.settled(self._v):
+            return self.ends
+        return tuple(e for e in self.ends if e.quantity is not Quantity.CURRENT)
 
     def observe(self, s: Sample) -> str | None:
         self._v = s.v
@@ -219,7 +237,7 @@ class CCCVExecutor(StepExecutor):
         return self.reg.update(self._v) if self._v is not None else self.reg.current
 
     def active_ends(self) -> tuple[EndCondition, ...]:
-        return self.ends if self.cv else self._cc_ends
+        return self.ends if self.cv and self._v is not None and self.reg.settled(self._v) else self._cc_ends
 
     def observe(self, s: Sample) -> str | None:
         if not self.cv and self.sign * (s.v - self.reg.target_V) >= 0:
