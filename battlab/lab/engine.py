@@ -140,6 +140,7 @@ class EngineConfig:
     start_entry: int = 0
     step_count0: int = 0
     row0: int = 0
+    net_capacity0_Ah: float = 0.0
     #: resume: the run's time origin and the last logged test time (None: a new run)
     t0_s: float | None = None
     last_test_time_s: float | None = None
@@ -185,6 +186,7 @@ class RunEngine:
         self._t0 = 0.0
         self._step_count = config.step_count0
         self._rows = config.row0
+        self._q_Ah = config.net_capacity0_Ah
         self._rest_voltage = math.nan
         self._current: tuple[PlanEntry, int, Any] | None = None
         self._current_announced = False
@@ -521,6 +523,14 @@ class RunEngine:
             self.stats.max_late_s = max(self.stats.max_late_s, late)
         return Sample(t, m.voltage_V, m.current_A, m.temperature_K)
 
+    def _net_Ah(self, s: Sample) -> float:
+        """Charge passed since the run's start / Ah: the previous sample's current held until this one (the log's
+        zero-order hold); nothing is counted across an interruption (a resume starts from the last logged value)."""
+        last = self._last
+        if last is not None:
+            self._q_Ah += last.i * max(0.0, s.t - last.t) / 3600.0
+        return self._q_Ah
+
     def _record(self, s: Sample, entry: PlanEntry, count: int, ex: Any) -> None:
         """Emit the sample (logged first), then check it against the envelope and the programmed current."""
         t = s.t
@@ -536,6 +546,7 @@ class RunEngine:
             float(count),
             float(entry.step_index),
             float(entry.trial),
+            self._net_Ah(s),
         )
         self._rows += 1
         self.stats.samples += 1

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from battlab.io.data import AMBIENT, CURRENT, STEP, SURFACE, TIME, VOLTAGE, LoggedData
+from battlab.io.data import AMBIENT, CURRENT, NET_CAPACITY, STEP, SURFACE, TIME, VOLTAGE, LoggedData
 from battlab.io.logs import LogWriter, open_log, read_log
 from protocols.errors import InputError
 
@@ -29,8 +29,21 @@ STEP_INDEX = "Step Index / 1"
 CYCLE = "Cycle Count / 1"
 
 #: the runner's columns (BDF names); Step Count counts step executions (a restarted step gets a new count),
-#: Step Index is the step's 1-based position in the plan, Cycle Count the trial of a repeated profile
-COLUMNS: tuple[str, ...] = (TIME, UNIX_TIME, STEP_TIME, VOLTAGE, CURRENT, SURFACE, AMBIENT, STEP, STEP_INDEX, CYCLE)
+#: Step Index is the step's 1-based position in the plan, Cycle Count the trial of a repeated profile, Net Capacity
+#: the charge passed since the run's start (not counted across an interruption)
+COLUMNS: tuple[str, ...] = (
+    TIME,
+    UNIX_TIME,
+    STEP_TIME,
+    VOLTAGE,
+    CURRENT,
+    SURFACE,
+    AMBIENT,
+    STEP,
+    STEP_INDEX,
+    CYCLE,
+    NET_CAPACITY,
+)
 
 
 def create(path: str | Path, columns: Sequence[str], meta: Mapping[str, Any]) -> LogWriter:
@@ -80,7 +93,9 @@ def reopen(path: str | Path, meta: Mapping[str, Any]) -> tuple[LogWriter, Logged
             target = path.with_name(f"{path.stem}.interrupted-{n}{path.suffix}")
         os.replace(path, target)
         log.info("resume: kept the interrupted log as %s", target)
-    columns = list(old.columns) if old is not None else list(COLUMNS)
+    columns = list(COLUMNS)
+    if old is not None and list(old.columns) != columns:
+        raise InputError(f"{path}: its columns {list(old.columns)} are not this runner's {columns}; cannot resume")
     writer = create(path, columns, meta)
     if old is not None and len(old):
         writer.append(np.column_stack([old.columns[c] for c in columns]))

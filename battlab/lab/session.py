@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from battlab.io.data import NET_CAPACITY
 from battlab.lab import logfile
 from battlab.lab.catalog import Catalog, RunLock
 from battlab.lab.documents import CatalogSink, LogSink, Subscriber
@@ -337,6 +338,8 @@ def resume_run(
     log_path = Path(rec.log_path)
     old = logfile.recover(log_path)
     n_old = len(old) if old is not None else 0
+    if old is not None and list(old.columns) != list(logfile.COLUMNS):
+        raise InputError(f"{log_path}: its columns are not this runner's {list(logfile.COLUMNS)}; cannot resume")
     last_tt = float(old.t[-1]) if old is not None and n_old else None
     _prepare(plan, settings)  # refuse before anything changes
     catalog.mark_interrupted_steps(run_id, n_old)
@@ -377,6 +380,7 @@ def resume_run(
         "start_entry": rec.next_entry,
         "step_count0": max([rec.step_count, *[s["step_count"] for s in steps]], default=0),
         "row0": n_old,
+        "net_capacity0_Ah": float(old.columns[NET_CAPACITY][-1]) if old is not None and n_old else 0.0,
         "t0_s": rec.t0,
         "last_test_time_s": last_tt,
         "expected_identities": identities,

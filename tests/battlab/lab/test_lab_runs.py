@@ -110,6 +110,8 @@ def test_a_plan_runs_to_completion_and_every_sample_is_logged(make_lab, home: Pa
     assert tail.size > 10 and np.max(np.abs(cols[V][tail] - 3.62)) < 0.005
     assert cols[I][tail][-1] < cols[I][tail][0] - 0.3
     assert np.all(np.isfinite(cols["Surface Temperature T1 / degC"]))
+    q = np.concatenate([[0.0], np.cumsum(cols[I][:-1] * np.diff(cols[TIME]))]) / 3600  # the log's own hold
+    np.testing.assert_allclose(cols["Net Capacity / Ah"], q, atol=1e-9)
     data = load_data(result.log_path)  # what battlab fit reads
     assert data.meta["final"]["status"] == "completed" and data.meta["identities"]["cycler"].startswith("battlab,")
     assert [s["status"] for s in data.meta["final"]["steps"]] == ["completed"] * 5
@@ -279,6 +281,8 @@ def test_ctrl_c_stops_safely_and_the_run_resumes_to_completion(make_lab, home: P
     statuses = [(s["step_index"], s["status"]) for s in data.meta["final"]["steps"]]
     assert statuses.count((stopped_at, "stopped")) == 1 and statuses.count((stopped_at, "completed")) == 1
     assert Catalog().get(result.run_id).status == "completed"
+    net = data.columns["Net Capacity / Ah"]  # not counted across the interruption
+    assert net[n] == pytest.approx(net[n - 1], abs=1e-12) and np.all(np.isfinite(net))
 
 
 def test_limits_are_checked_before_anything_is_switched_on(make_lab, home: Path, tmp_path: Path) -> None:

@@ -286,7 +286,7 @@ def test_catalog_records_runs_and_steps(catalog: Catalog, tmp_path: Path) -> Non
 def test_reopen_keeps_every_row_and_a_backup_until_the_log_is_closed(tmp_path: Path) -> None:
     path = tmp_path / "run.h5"
     w = logfile.create(path, logfile.COLUMNS, {"run_id": 1})
-    first = np.arange(30.0).reshape(3, 10)
+    first = np.arange(3.0 * len(logfile.COLUMNS)).reshape(3, -1)
     w.append(first)
     w.flush()
     w.close()
@@ -296,7 +296,7 @@ def test_reopen_keeps_every_row_and_a_backup_until_the_log_is_closed(tmp_path: P
     writer.append(first + 100)
     writer.close({"status": "completed"})
     data = read_log(path)
-    np.testing.assert_array_equal(data.columns[logfile.COLUMNS[0]], [0, 10, 20, 100, 110, 120])
+    np.testing.assert_array_equal(data.columns[logfile.COLUMNS[0]], [0, 11, 22, 100, 111, 122])
     assert data.meta["resumes"] == [{"row": 3}] and data.meta["complete"]
     assert logfile.drop_backups(path) == [tmp_path / "run.interrupted-1.h5"]
     assert logfile.backups(path) == []
