@@ -478,6 +478,7 @@ class SensitivityStore:
         """Attributes of one profile's group (status, reason, flags, kind, soc0, params, …)."""
         g = self._group(pid, where)
         d = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in g.attrs.items()}
+        d["id"] = _id_value(d["id"])
         d["flags"] = json.loads(d.get("flags", "[]"))
         d["params"] = json.loads(d.get("params", "{}"))
         return d

@@ -429,6 +429,7 @@ def design(
         )
         designs = gd.design_groups(info, grp, settings, conv)
         solve_seconds = time.perf_counter() - t0
+        meta_by_id = {m["id"]: m for m in info.meta}
         files = planmod.write_plan(
             designs,
             store,
@@ -443,11 +444,11 @@ def design(
                 "cumulative": cumulative,
                 "n_candidates": len(info),
                 "excluded": {str(k_): v for k_, v in info.excluded.items()},
+                "selected_profiles": {str(pid): meta_by_id[pid] for d in designs for pid in d.selected},
             },
         )
         fig = figs.design_weights(designs, Path(output).with_suffix(".weights.png"))
-        meta = {m["id"]: m for m in info.meta}
-    _print_design(console, designs, meta, settings, source, len(info), solve_seconds)
+    _print_design(console, designs, meta_by_id, settings, source, len(info), solve_seconds)
     console.print(f"wrote {files.plan}, {', '.join(str(p) for p in files.groups)}, {files.summary}, {fig}")
 
 

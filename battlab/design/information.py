@@ -97,6 +97,7 @@ def load(
                 "params": info["params"],
                 "duration": prof.duration,
                 "throughput": prof.charge_throughput,
+                "peak_current_A": prof.max_abs_current,
                 "T_surface_max_C": float(info.get("T_surface_max_C", np.nan)),
             }
         )

@@ -149,3 +149,19 @@ def test_user_errors_are_one_line(workdir: Path, args: list[str], message: str) 
     assert r.exit_code == 2, r.output
     err = r.stderr.strip()
     assert message in err and len(err.splitlines()) == 1
+
+
+def test_plan_is_self_contained_when_the_library_file_is_gone(workdir: Path, tmp_path: Path) -> None:
+    import h5py
+
+    store = tmp_path / "moved.h5"
+    store.write_bytes((workdir / "sens.h5").read_bytes())
+    with h5py.File(store, "a") as f:
+        f.attrs["library_path"] = str(tmp_path / "gone.h5")
+    plan = tmp_path / "plan.toml"
+    r = CliRunner().invoke(main, ["design", str(store), "-o", str(plan), "-M", "2", "-k", "1"])
+    assert r.exit_code == 0, r.output
+    assert "library_id" not in plan.read_text() and "library =" not in plan.read_text()
+    proto = Protocol.load(plan)
+    selected = json.loads((tmp_path / "summary.json").read_text())["groups"][0]["selected"]
+    assert [s.profile.id for s in proto.steps if isinstance(s, ProfileStep)] == selected
