@@ -88,10 +88,18 @@ class Shutdown:
 def safe_shutdown(cycler: Cycler, chamber: Chamber | None, safe_set_point_degC: float | None) -> Shutdown:
     """Output off, current 0, chamber to ``safe_set_point_degC`` (None: leave it); never raises."""
     out = Shutdown()
-    try:
-        out.output_off_confirmed = bool(cycler.safe_off())
-    except Exception as exc:  # safe_off must not raise, but a foreign driver might
-        out.problems.append(f"output off: {exc}")
+    for attempt in range(2):
+        try:
+            out.output_off_confirmed = bool(cycler.safe_off())
+        except Exception as exc:  # safe_off must not raise, but a foreign driver might
+            out.problems.append(f"output off: {exc}")
+        if out.output_off_confirmed or attempt:
+            break
+        try:  # an older error in the queue (e.g. the fault itself) reads as a rejection of 'output off': drain
+            for code, message in cycler.errors():
+                out.problems.append(f"cycler error queue: {code},{message}")
+        except Exception:
+            break
     if not out.output_off_confirmed:
         out.problems.append("output off not confirmed by the cycler (its watchdog turns it off if the link is dead)")
     try:
