@@ -149,6 +149,10 @@ class Cell:
         object.__setattr__(self, "values", MappingProxyType(vals))
         object.__setattr__(self, "sources", MappingProxyType(dict(self.sources)))
 
+    def __reduce__(self) -> tuple:
+        """Cells pickle (for worker processes and Dask) as their plain values."""
+        return (Cell, (self.name, dict(self.values), dict(self.sources), self.description))
+
     # --- construction ---------------------------------------------------------------------------------
     @classmethod
     def load(cls, name_or_path: str | Path) -> Cell:
@@ -256,6 +260,13 @@ class Cell:
     def hash(self) -> str:
         """SHA-256 of the canonical JSON of all values (keys sorted): identifies the parameter set."""
         blob = json.dumps({k: to_json(v) for k, v in sorted(self.values.items())}, sort_keys=True)
+        return hashlib.sha256(blob.encode()).hexdigest()
+
+    def static_hash(self) -> str:
+        """The hash of every value except the 18 identified parameters (which the compiled model takes as
+        inputs): cells that differ only in those share one compiled model."""
+        dyn = set(parameters.NAMES)
+        blob = json.dumps({k: to_json(v) for k, v in sorted(self.values.items()) if k not in dyn}, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()
 
     # --- equilibrium ----------------------------------------------------------------------------------

@@ -83,6 +83,9 @@ class Expr:
         object.__setattr__(self, "text", text.strip())
         object.__setattr__(self, "_tree", tree.body)
 
+    def __reduce__(self) -> tuple:
+        return (Expr, (self.text, self.variables))  # re-parsed (and re-checked) on unpickling
+
     def __call__(self, *args: Any, backend: str = "numpy") -> Any:
         if len(args) != len(self.variables):
             raise TypeError(f"{self.text!r} takes {len(self.variables)} argument(s)")
@@ -171,13 +174,14 @@ def as_function(value: Any, variables: tuple[str, ...] = ("x",)) -> Function | f
 
 def evaluate(f: Function | float, x: Any, backend: str = "numpy") -> Any:
     """Evaluate a parameter that may be a constant, an expression or a table."""
-    if isinstance(f, float | int):
-        if backend == "numpy":
-            return f + 0 * x
-        import casadi as ca
+    value = f if isinstance(f, float | int) else f(x, backend=backend)
+    if backend == "numpy":
+        return value + 0 * x  # a constant expression ("0") still has the shape of x
+    import casadi as ca
 
-        return float(f) * ca.DM.ones(x.shape) if hasattr(x, "shape") else float(f)  # same shape as x
-    return f(x, backend=backend)
+    if hasattr(x, "shape") and (not hasattr(value, "shape") or value.shape != x.shape):
+        return value * ca.DM.ones(x.shape)
+    return value
 
 
 def to_json(f: Function | float) -> Any:

@@ -60,6 +60,10 @@ class Profile:
         object.__setattr__(self, "current", i)
         object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
 
+    def __reduce__(self) -> tuple:
+        """Profiles pickle (for worker processes and Dask) as plain arrays and metadata."""
+        return (_rebuild, (np.array(self.t), np.array(self.current), self.id, self.kind, self.soc0, dict(self.params)))
+
     @property
     def duration(self) -> float:
         """Total duration [s]."""
@@ -186,3 +190,7 @@ class Profile:
             raise InputError(f"unknown profile field(s) {sorted(unknown)}; expected {sorted(fields)}")
         fields.update(meta)
         return type(self)(self.t, self.current, **fields)
+
+
+def _rebuild(t: np.ndarray, current: np.ndarray, id: Any, kind: Any, soc0: Any, params: dict) -> Profile:  # noqa: A002
+    return Profile(t, current, id=id, kind=kind, soc0=soc0, params=params)

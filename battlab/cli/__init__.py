@@ -13,6 +13,22 @@ from protocols.errors import InputError
 class _Main(click.Group):
     """A group that turns a user's mistake (bad file, field, value) into one line and a non-zero exit."""
 
+    def main(self, *args: object, **kwargs: object) -> object:
+        """Usage errors (a missing argument, a non-number) are one line too, not click's usage block."""
+        kwargs["standalone_mode"] = False
+        try:
+            return super().main(*args, **kwargs)
+        except click.exceptions.Abort:
+            click.echo("aborted", err=True)
+            sys.exit(130)
+        except click.UsageError as exc:
+            where = f"{exc.ctx.command_path}: " if exc.ctx is not None else ""
+            click.echo(f"error: {where}{exc.format_message()}", err=True)
+            sys.exit(2)
+        except click.ClickException as exc:
+            click.echo(f"error: {exc.format_message()}", err=True)
+            sys.exit(exc.exit_code)
+
     def invoke(self, ctx: click.Context) -> object:
         try:
             return super().invoke(ctx)

@@ -92,7 +92,7 @@ def _residual_functions(model: DFN) -> tuple[ca.Function, ca.Function, ca.Functi
 
 def compile_model(cell: Cell, mesh: Mesh, isothermal: bool, ns: int, chunk: int) -> Compiled:
     """Build (or fetch from the cache) the chunk functions; ``ns`` sensitivity directions (0: none)."""
-    return _compile(cell, cell.hash(), mesh, isothermal, ns, chunk)
+    return _compile(cell, cell.static_hash(), mesh, isothermal, ns, chunk)
 
 
 _CACHE: dict[tuple, Compiled] = {}
@@ -423,7 +423,7 @@ def native_stepper(cell: Cell, mesh: Mesh, isothermal: bool):  # -> NativeSteppe
     """The compiled stepper of (cell, mesh, thermal option), built once per process (and cached on disk)."""
     from battlab.model.native import NativeStepper
 
-    key = (cell.hash(), mesh, isothermal)
+    key = (cell.static_hash(), mesh, isothermal)
     if key not in _NATIVE:
         _NATIVE[key] = NativeStepper(DFN(cell, mesh, isothermal=isothermal))
     return _NATIVE[key]

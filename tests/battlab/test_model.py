@@ -279,9 +279,6 @@ def test_entropic_heat_changes_sign_with_the_current(nca18650: Cell) -> None:
     assert np.sign(diffs[0]) == -np.sign(diffs[1])
 
 
-@pytest.mark.xfail(strict=True, raises=RuntimeError, reason=(
-    "battlab.functions.evaluate broadcasts a constant number but not a constant Expr in CasADi: dlnf='0' makes "
-    "a scalar thermodynamic factor and dfn.py slices it (tdf[:-1], 1x0) -> CasADi dimension mismatch"))
 def test_constant_functions_as_numbers_or_strings(nca18650: Cell) -> None:
     """A function-valued parameter given as a constant expression string ("0") is the same model as the number
     (here the activity term d ln f / d ln c_e; a number 0 is what BPX cells carry)."""
