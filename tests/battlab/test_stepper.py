@@ -1,0 +1,100 @@
+"""The compiled stepper: agreement with the CasADi stepper, the static-pivot LU program, the live cell."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import battlab
+from battlab import parameters
+from battlab.model import native, solver
+from battlab.model.dfn import DFN
+from battlab.model.live import LiveCell
+from battlab.model.mesh import Mesh
+from protocols import Profile
+
+
+@pytest.fixture(scope="module")
+def cell() -> battlab.Cell:
+    return battlab.Cell.load("nca18650")
+
+
+def _pulses(n: int = 121) -> Profile:
+    t = np.arange(float(n))
+    return Profile(t, np.where((t // 15) % 2 == 0, -8.1, 2.7))
+
+
+@pytest.mark.slow
+def test_compiled_and_casadi_steppers_agree(cell: battlab.Cell) -> None:
+    prof = _pulses()
+    names = ["R_s_n", "D_s_p", "k_n", "c_e0"]
+    a = battlab.simulate(cell, prof, soc0=0.6, sensitivities=names, backend="native")
+    b = battlab.simulate(cell, prof, soc0=0.6, sensitivities=names, backend="casadi")
+    assert a.voltage.size == b.voltage.size == prof.t.size
+    np.testing.assert_allclose(a.voltage, b.voltage, atol=1e-9)
+    np.testing.assert_allclose(a.T_surface, b.T_surface, atol=1e-9)
+    np.testing.assert_allclose(a.sensitivities, b.sensitivities, atol=1e-7)
+
+
+def _replay(prog: native.LUProgram, jnz: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """A Python copy of stepper.c's lu_factor + lu_solve."""
+    arr = prog.arrays
+    n = arr["piv"].size
+    a = np.zeros(prog.nslot)
+    a[arr["jac2slot"]] = jnz
+    o = 0
+    for k in range(n):
+        lo, hi = arr["lptr"][k], arr["lptr"][k + 1]
+        a[arr["lslot"][lo:hi]] /= a[arr["piv"][k]]
+        for l in range(lo, hi):
+            for u in range(arr["uptr"][k], arr["uptr"][k + 1]):
+                a[arr["upd"][o]] -= a[arr["lslot"][l]] * a[arr["uslot"][u]]
+                o += 1
+    c = b[arr["prow"]].copy()
+    for k in range(n):
+        lo, hi = arr["lptr"][k], arr["lptr"][k + 1]
+        c[arr["lrow"][lo:hi]] -= a[arr["lslot"][lo:hi]] * c[k]
+    for k in range(n - 1, -1, -1):
+        c[k] /= a[arr["piv"][k]]
+        lo, hi = arr["ucptr"][k], arr["ucptr"][k + 1]
+        c[arr["ucrow"][lo:hi]] -= a[arr["ucslot"][lo:hi]] * c[k]
+    x = np.empty(n)
+    x[arr["pcol"]] = c
+    return x
+
+
+def test_lu_program_solves_the_step_jacobian_at_another_state(cell: battlab.Cell) -> None:
+    """The pivot order analysed at one state still solves the Newton matrix at another (static pivoting)."""
+    model = DFN(cell, Mesh(n_n=4, n_s=3, n_p=4, n_r=5))
+    fs, jsp, _ = native._functions(model)
+    jac = {f.name(): f for f in fs}["bl_jac"]
+    th = np.array([cell.normalised(n) for n in parameters.NAMES])
+    x0 = solver.initial_state(model, 0.5, th, 298.15)
+    y = np.concatenate([x0, solver.guess_algebraic(model, x0, 2.7)])
+    prog = native.analyse(jsp, np.array(jac(y, x0, x0, [1.0, 0.0, 2.7, 298.15], th).nonzeros()))
+    x1 = solver.initial_state(model, 0.2, th, 310.0)
+    y1 = np.concatenate([x1, solver.guess_algebraic(model, x1, -5.0)])
+    jnz = np.array(jac(y1, x1, x1, [0.3, 1.5, -5.0, 310.0], th).nonzeros())
+    A = sp.csc_matrix((jnz, np.array(jsp.row()), np.array(jsp.colind())), shape=(jsp.size1(), jsp.size1()))
+    b = np.random.default_rng(1).standard_normal(jsp.size1())
+    x = _replay(prog, jnz, b)
+    np.testing.assert_allclose(A @ x, b, atol=1e-8 * np.abs(A).max())
+
+
+def test_live_cell_reproduces_simulate(cell: battlab.Cell) -> None:
+    prof = _pulses(91)
+    ref = battlab.simulate(cell, prof, soc0=0.6)
+    live = LiveCell(cell, 0.6)
+    v = np.array([live.step(i, 1.0, 298.15)[0] for i in prof.current[:-1]])
+    same = prof.current[1:] == prof.current[:-1]  # where left and right limits coincide
+    assert same.sum() > 50
+    np.testing.assert_allclose(v[same], ref.voltage[1:][same], atol=1e-10)
+    assert live.T_surface == pytest.approx(ref.T_surface[-1], abs=1e-9)
+
+
+def test_cells_differing_in_identified_parameters_share_the_compiled_model(cell: battlab.Cell) -> None:
+    other = cell.with_normalised(R_s_n=0.3, k_p=0.7)
+    assert other.static_hash() == cell.static_hash() and other.hash() != cell.hash()
+    assert solver.native_stepper(cell, Mesh(), False) is solver.native_stepper(other, Mesh(), False)
+    assert cell.with_values(L_n=8e-5).static_hash() != cell.static_hash()
