@@ -153,7 +153,9 @@ def open_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambie
         adapter = getattr(cycler, "adapter", None)
         if speed > 1.0 and adapter is not None and hasattr(adapter, "timeout_s"):
             adapter.timeout_s = link_timeout  # the link timeout follows the instrument's clock
-        chamber = open_chamber(chamber_url, timeout_s=max(0.05, min(1.0, link_timeout)))
+        # RTU framing paces frames by the baud rate (~40 ms for a 15-register reply at 9600 baud)
+        floor = 0.25 if chamber_url.startswith("modbus-rtu") else 0.05
+        chamber = open_chamber(chamber_url, timeout_s=max(floor, min(1.0, link_timeout)))
     except BaseException:
         if cycler is not None:
             cycler.close()
@@ -164,8 +166,9 @@ def open_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambie
 
 
 def watchdog_for(speed: float) -> float:
-    """Instrument watchdog / s of the instrument's clock: 60 s, and at least 0.2 s of real time."""
-    return max(60.0, 0.2 * speed)
+    """Instrument watchdog / s of the instrument's clock: 60 s, and at least 0.5 s of real time (longer than a
+    chamber exchange that times out, during which the cycler hears nothing)."""
+    return max(60.0, 0.5 * speed)
 
 
 @contextmanager
@@ -371,6 +374,12 @@ def resume_run(
         "previous_reason": rec.reason,
         "settings": settings.to_dict(),
     }
+    if settings.virtual:
+        resume_note["note"] = (
+            f"in-process virtual tester restarted: its cell starts again at SOC "
+            f"{0.5 if settings.soc0 is None else settings.soc0}, not where the run left it"
+        )
+        log.warning("resume: %s", resume_note["note"])
     meta = {**base, "resumes": [*base.get("resumes", []), resume_note], "interrupted": interrupted}
     if not base:
         meta.update(run_id=run_id, plan=rec.plan, settings=settings.to_dict())

@@ -25,6 +25,7 @@ from battlab.io.data import load_data
 from battlab.io.logs import read_log
 from battlab.lab.catalog import Catalog
 from battlab.lab.logfile import COLUMNS
+from battlab.lab.session import watchdog_for
 from drivers.scpi.cycler import ScpiCycler
 from protocols.errors import InputError
 
@@ -139,9 +140,8 @@ def test_kill_9_mid_run_then_resume(tester: dict[str, str], home: Path, tmp_path
     (rec,) = Catalog().list()
     assert rec.shown_status == "interrupted" and rec.next_entry == 3
 
-    # the runner is dead; the instrument's watchdog (60 virtual s) turns the output off. No I/O meanwhile: a
-    # query would reset it.
-    time.sleep(60.0 / SPEED * 3)
+    # the runner is dead; the instrument's watchdog turns the output off. No I/O meanwhile: a query would reset it.
+    time.sleep(2 * watchdog_for(SPEED) / SPEED)
     probe = ScpiCycler.open(tester["cycler"])
     try:
         state = probe.protection()

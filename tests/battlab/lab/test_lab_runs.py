@@ -120,6 +120,22 @@ def test_a_plan_runs_to_completion_and_every_sample_is_logged(make_lab, home: Pa
     assert not lab.snapshot()["output_on"]
 
 
+@pytest.mark.parametrize("chamber", ["espec", "modbus-rtu+socket"])
+def test_the_other_chambers_drive_the_same_run(make_lab, home: Path, tmp_path: Path, chamber: str) -> None:
+    """The Espec P-300 text protocol and the F4T with Modbus RTU framing serve the same runner."""
+    lab = make_lab(soc0=0.5, espec_port=0, modbus_rtu_port=0)
+    url = lab.espec_url if chamber == "espec" else lab.rtu_url
+    plan = plan_from(PLAN, tmp_path)
+    result = start_run(
+        plan, RunSettings(cycler_url=lab.cycler_url, chamber_url=url), tmp_path / "run.h5", display=False
+    )
+    assert result.status == "completed", result.reason
+    cols = check_log(result)
+    assert np.all(np.abs(cols["Ambient Temperature / degC"] - 25.0) < 0.5)
+    ident = read_log(result.log_path).meta["identities"]["chamber"]
+    assert ("P-300" in ident or "ESPEC" in ident.upper()) if chamber == "espec" else "Watlow F4T" in ident
+
+
 LINK_FAULTS = [
     ("scpi", Fault.DROP, FaultConfig(drop=0.02, seed=1)),
     ("scpi", Fault.LOSE_REPLY, FaultConfig(lose_reply=0.02, seed=2)),
