@@ -1,17 +1,15 @@
 """The "conventional approach" baseline (paper, Validation): constant-current tests plus one drive cycle, all
 parameters fitted at once with the same start point, optimiser and stopping rule as the OED fit.
 
-Tests (positive current = charge, 1C = the cell's ``Q_nom``): discharges at C/10, C/5, C/3 and 2C from SOC
-0.8 (see ``DISCHARGE_SOC0``) to V_min, charges at C/5, C/2 and 1C from empty (SOC 0) to V_max,
-and the UDDS drive cycle from SOC 0.8
+Tests (positive current = charge, 1C = the cell's ``Q_nom``): discharges at C/10, C/5, C/3 and 2C from full
+charge (SOC 1) to V_min, charges at C/5, C/2 and 1C from empty (SOC 0) to V_max, and the UDDS drive cycle from
+SOC 0.8 (from SOC 1 its regenerative pulses would hit V_max at once)
 (:func:`protocols.conventional` lists the same steps as a tester protocol; 0.5C and 1C discharges are left for
 validation, Table 12). Constant-current tests are logged every ``dt_cc`` seconds (10 s), the drive cycle every
 second. Each test is run until the cell's voltage limit (the logged data end there).
 """
 
 from __future__ import annotations
-
-import warnings
 
 import numpy as np
 
@@ -21,12 +19,12 @@ from battlab.identify.forward import ForwardModel
 from battlab.identify.virtual import synthesize
 from battlab.noise import NoiseModel
 from protocols.drive_cycles import Cycle, drive_profile
+from protocols.errors import InputError
 from protocols.profile import Profile
 
 DISCHARGE_C = (0.1, 0.2, 1 / 3, 2.0)
-#: Start SOC of the discharges: 0.8, not 1.0, because the model's Newton fails at t = 0 when a discharge starts
-#: above about SOC 0.85 on ``nca18650-true`` (reported to the model's owner); the tests still span 80 % of SOC.
-DISCHARGE_SOC0 = 0.8
+#: Start SOC of the discharges (full charge).
+DISCHARGE_SOC0 = 1.0
 CHARGE_C = (0.2, 0.5, 1.0)
 
 
@@ -52,9 +50,7 @@ def virtual_experiments(forward: ForwardModel, truth: Cell, *, seed: int, noise:
         out = forward.run(th, prof, soc0)
         n = out.voltage.size
         if n < 10 or (out.ended_by or "").startswith("solver"):
-            warnings.warn(f"conventional test {prof.id}: the true cell's simulation failed ({out.ended_by}); "
-                          "left out", RuntimeWarning, stacklevel=2)
-            continue
+            raise InputError(f"conventional test {prof.id}: the true cell's simulation failed ({out.ended_by})")
         cut = Profile(prof.t[:n], np.r_[prof.current[: n - 1], prof.current[n - 2]], id=prof.id, kind=prof.kind,
                       soc0=soc0)
         exps.append(synthesize(forward, truth, cut, soc0, seed=seed * 1000 + k, noise=noise, name=str(prof.id),

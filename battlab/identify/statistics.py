@@ -8,9 +8,16 @@ With the weighted Jacobian J_w = W^½ ∂ŷ/∂θ̄ and weighted residuals r_w =
   units (asymmetric for log-scaled parameters), intersected with the identification bounds;
 * a parameter at an active bound gets a one-sided interval and is flagged; the other parameters' statistics
   are those of the reduced problem with it held at the bound;
-* an information matrix that is singular (numerically: reciprocal condition number of the column-scaled
-  J_w below ``rcond``) gives no intervals at all: ``valid`` is False and ``reason`` names the parameters of
-  the null space.
+* an information matrix that is singular (numerically: a singular value of the column-scaled J_w below
+  ``rcond`` times the largest) is never inverted: ``valid`` is False, ``null_space`` lists the unidentifiable
+  directions (unit vectors in column-scaled θ̄, as {name: coefficient}) and ``reason`` names them. A parameter
+  with a component above ``IDENT_TOL`` in a null direction is not identifiable: no σ, no interval,
+  ``Estimate.identifiable`` False. The others are estimable functions: their variances come from the
+  pseudo-inverse (the covariance on the identifiable subspace, ``covariance_identifiable``; it equals the
+  covariance of the reduced problem with any one parameter of each null direction held fixed) and their
+  intervals are valid. ``covariance`` stays None. (With all 18 parameters, R_s, D_s, R_f and k of each electrode
+  are dependent: R_s acts through R_s²/D_s and a_s = 3ε_s/R_s, and near-linear kinetics let R_f and k absorb
+  a_s.)
 """
 
 from __future__ import annotations
@@ -23,7 +30,12 @@ from scipy import stats as _st
 
 from battlab import parameters
 
-RCOND = 1e-10
+#: Relative singular value below which a direction counts as unidentifiable (the 18-parameter problem has two
+#: directions near 1e-11 and the next at about 1e-4).
+RCOND = 1e-8
+#: A parameter whose component in a null direction exceeds this is not identifiable (the 18-parameter problem:
+#: R_s, D_s, R_f, k at 0.01–0.7, all others below 1e-7).
+IDENT_TOL = 1e-4
 
 
 @dataclass(frozen=True)
@@ -38,6 +50,7 @@ class Estimate:
     ci95: tuple[float, float] | None
     ci95_scaled: tuple[float, float] | None
     at_bound: str | None  # "lower" | "upper" | None
+    identifiable: bool = True  # False: in a null direction of the information matrix (no σ, no interval)
 
     def covers(self, value: float) -> bool | None:
         """Whether a physical value lies in the 95 % interval (None without an interval)."""
@@ -64,6 +77,9 @@ class Statistics:
     estimates: tuple[Estimate, ...] = field(default_factory=tuple)
     valid: bool = True
     reason: str | None = None
+    unidentifiable: tuple[str, ...] = ()
+    null_space: tuple[dict[str, float], ...] = ()  # unidentifiable directions, column-scaled θ̄
+    covariance_identifiable: np.ndarray | None = None  # pseudo-inverse (p, p), valid between estimable parameters
 
     def __getitem__(self, name: str) -> Estimate:
         for e in self.estimates:
@@ -75,7 +91,7 @@ class Statistics:
         """Rows for printing: name, value, ci95, σ, θ̄, at_bound."""
         return [
             {"name": e.name, "value": e.value, "ci95": e.ci95, "sigma": e.sigma, "theta_bar": e.theta_bar,
-             "at_bound": e.at_bound}
+             "at_bound": e.at_bound, "identifiable": e.identifiable}
             for e in self.estimates
         ]
 
@@ -123,49 +139,78 @@ def compute(
     free = np.array([b is None for b in bound])
     Jf = J[:, free]
     norms = np.linalg.norm(Jf, axis=0)
-    if np.any(norms == 0) or not np.all(np.isfinite(Jf)):
-        dead = [nm for nm, f in zip(np.array(names)[free], norms == 0, strict=True) if f]
-        return invalid(f"singular information matrix: zero sensitivity to {', '.join(dead) or 'a parameter'}")
-    U, s, Vt = np.linalg.svd(Jf / norms, full_matrices=False)
+    if not np.all(np.isfinite(J)):
+        return invalid("the Jacobian has non-finite entries")
+    dead = [nm for nm, f in zip(np.array(names)[free], norms == 0, strict=True) if f]
+    norms[norms == 0] = 1.0  # a zero column is a null direction of its own
+    _, s, Vt = np.linalg.svd(Jf / norms, full_matrices=False)
     cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
-    if s[-1] <= rcond * s[0]:
-        v = Vt[-1]
-        involved = [f"{nm} ({c:+.2f})" for nm, c in zip(np.array(names)[free], v, strict=True) if abs(c) > 0.2]
-        return invalid(
-            f"singular information matrix (condition {cond:.3g}): the combination {', '.join(involved)} "
-            "is not identifiable from these data", cond,
-        )
-    # Cov of the free parameters: (J_fᵀ J_f)⁻¹ = D⁻¹ V S⁻² Vᵀ D⁻¹ with D = diag(norms)
-    cov_f = (Vt.T / s**2) @ Vt / np.outer(norms, norms)
-    cov = np.full((p, p), np.nan)
+    fnames = [nm for nm, f in zip(names, free, strict=True) if f]
+    keep = s > rcond * s[0]
+    null = Vt[~keep]
+    unident_f = np.linalg.norm(null, axis=0) > IDENT_TOL if null.size else np.zeros(len(fnames), bool)
+    # Cov of the free parameters: (J_fᵀ J_f)⁻¹ = D⁻¹ V S⁻² Vᵀ D⁻¹ with D = diag(norms) (pseudo-inverse if singular)
+    cov_f = (Vt[keep].T / s[keep] ** 2) @ Vt[keep] / np.outer(norms, norms)
     idx = np.flatnonzero(free)
+    ok = np.zeros(p, bool)
+    ok[idx[~unident_f]] = True
+    cov = np.full((p, p), np.nan)
     cov[np.ix_(idx, idx)] = cov_f
-    for k in np.flatnonzero(~free):  # marginal variance of a bound parameter: from the full matrix if possible
-        full = J.T @ J
-        try:
-            cov[k, k] = float(np.linalg.inv(full)[k, k])
-            if not np.isfinite(cov[k, k]) or cov[k, k] <= 0:
-                raise np.linalg.LinAlgError
-        except np.linalg.LinAlgError:
-            cov[k, k] = 1.0 / float(J[:, k] @ J[:, k]) if J[:, k] @ J[:, k] > 0 else np.nan
-    sig = np.sqrt(np.diag(cov))
-    corr = cov_f / np.outer(np.sqrt(np.diag(cov_f)), np.sqrt(np.diag(cov_f)))
+    if (~free).any():  # marginal variance of a bound parameter: from the full matrix if it is estimable there
+        nb = np.linalg.norm(J, axis=0)
+        nb[nb == 0] = 1.0
+        _, sb_, Vb = np.linalg.svd(J / nb, full_matrices=False)
+        kb = sb_ > rcond * sb_[0]
+        nullb = Vb[~kb]
+        for k in np.flatnonzero(~free):
+            if nullb.size and np.linalg.norm(nullb[:, k]) > IDENT_TOL:
+                continue
+            v = float(np.sum(Vb[kb, k] ** 2 / sb_[kb] ** 2) / nb[k] ** 2)
+            if np.isfinite(v) and v > 0:
+                cov[k, k] = v
+                ok[k] = True
+    sig = np.sqrt(np.where(ok, np.diag(cov), np.nan))
+    d = np.sqrt(np.abs(np.diag(cov_f)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov_f / np.outer(d, d)
     corr_full = np.full((p, p), np.nan)
     corr_full[np.ix_(idx, idx)] = corr
+    for a in (cov, corr_full):  # rows/cols of non-identifiable parameters carry no information
+        a[~ok, :] = np.nan
+        a[:, ~ok] = np.nan
     est = []
     for k, nm in enumerate(names):
         spec = parameters.spec(nm)
         value = spec.denormalise(float(th[k]))
         sb = float(sig[k])
         if not np.isfinite(sb):
-            est.append(Estimate(nm, value, float(th[k]), None, None, None, None, bound[k]))
+            est.append(Estimate(nm, value, float(th[k]), None, None, None, None, bound[k], False))
             continue
         ci = _interval(nm, float(th[k]), tval * sb, bound[k])
         ci_s = _interval(nm, float(th[k]), tval * sb * np.sqrt(s2), bound[k])
         est.append(Estimate(nm, value, float(th[k]), sb, spec.dvalue_dnormalised(value) * sb, ci, ci_s, bound[k]))
-    reason = None
-    if (~free).any():
-        reason = "one-sided intervals for parameters at a bound: " + ", ".join(
-            f"{nm} ({b})" for nm, b in zip(names, bound, strict=True) if b
+    notes = []
+    directions: tuple[dict[str, float], ...] = ()
+    unident = tuple(nm for k, nm in enumerate(names) if not ok[k])
+    if null.size:
+        directions = tuple({nm: float(c) for nm, c in zip(fnames, v, strict=True) if abs(c) > IDENT_TOL}
+                           for v in null)
+        combos = "; ".join(", ".join(f"{nm} ({c:+.2f})" for nm, c in sorted(dd.items(), key=lambda x: -abs(x[1]))
+                                     if abs(c) > 0.01) for dd in directions)
+        notes.append(
+            f"singular information matrix ({len(null)} null direction(s), condition {cond:.3g}): the combination(s) "
+            f"{combos} are not identifiable from these data; no intervals for {', '.join(unident)}; the other "
+            "intervals use the covariance on the identifiable subspace"
         )
-    return Statistics(names, th, n, dof, tval, cov, cov * s2, corr_full, s2, cond, tuple(est), True, reason)
+    if (~free).any():
+        notes.append("one-sided intervals for parameters at a bound: " + ", ".join(
+            f"{nm} ({b})" for nm, b in zip(names, bound, strict=True) if b
+        ))
+    if dead:
+        notes.insert(0, f"zero sensitivity to {', '.join(dead)}")
+    singular = bool(null.size)
+    return Statistics(
+        names, th, n, dof, tval, None if singular else cov, None if singular else cov * s2,
+        None if singular else corr_full, s2, cond, tuple(est), not singular, "; ".join(notes) or None,
+        unident, directions, cov,
+    )

@@ -2,7 +2,8 @@
 
 The reference voltage is the noise-free truth when known (virtual lab; DESIGN.md: "RMSE against the noise-free
 true voltage"), else the measurement. Constant-current discharges are scored up to 90 % of the discharged
-capacity as in Table 12 (here: from SOC 0.8 over 70 % of capacity, see :mod:`battlab.identify.conventional`).
+capacity as in Table 12 (from full charge, 90 % of the cell's capacity between its voltage limits,
+:meth:`Cell.capacity`, or until the true cell reaches V_min, :func:`cut_at_limit`).
 """
 
 from __future__ import annotations
@@ -18,12 +19,24 @@ from battlab.identify.forward import ForwardModel
 from protocols.profile import Profile
 
 
-def discharge_profiles(cell: Cell, rates: Sequence[float] = (0.5, 1.0), soc0: float = 0.8, depth: float = 0.7
+def discharge_profiles(cell: Cell, rates: Sequence[float] = (0.5, 1.0), soc0: float = 1.0, depth: float = 0.9
                        ) -> list[tuple[Profile, float]]:
     """Constant-current validation discharges (Table 12): ``depth`` of capacity from ``soc0``, 1-s samples."""
-    q = float(cell["Q_nom"])
-    return [(Profile.constant(-c * q, depth * 3600 / c, 1.0, id=f"{c:g}C discharge", kind="cc"), soc0)
+    q, cap = float(cell["Q_nom"]), float(cell.capacity())
+    return [(Profile.constant(-c * q, depth * cap / q * 3600 / c, 1.0, id=f"{c:g}C discharge", kind="cc"), soc0)
             for c in rates]
+
+
+def cut_at_limit(forward: ForwardModel, truth: Cell, profile: Profile, soc0: float) -> Profile:
+    """``profile`` cut where the true cell reaches a voltage limit (a test ends there), else unchanged."""
+    out = forward.run(forward.theta_of(truth), profile, soc0)
+    n = out.voltage.size
+    if out.ended_by is None or n == profile.t.size:
+        return profile
+    if n < 10 or out.ended_by.startswith("solver"):
+        raise ValueError(f"validation profile {profile.id}: the true cell's simulation failed ({out.ended_by})")
+    return Profile(profile.t[:n], np.r_[profile.current[: n - 1], profile.current[n - 2]], id=profile.id,
+                   kind=profile.kind, soc0=soc0)
 
 
 def reference(e: Experiment) -> np.ndarray:

@@ -54,12 +54,34 @@ def test_singular_information_gives_no_intervals() -> None:
     J = J.copy()
     J[:, 2] = 2 * J[:, 1]  # two parameters with proportional sensitivities
     st = statistics.compute(NAMES, est, J, r)
-    assert not st.valid
+    assert not st.valid and st.covariance is None
     assert "singular" in st.reason and "D_s_n" in st.reason and "eps_e_n" in st.reason
-    assert all(e.ci95 is None for e in st.estimates)
+    assert st.unidentifiable == ("D_s_n", "eps_e_n") and len(st.null_space) == 1
+    assert set(st.null_space[0]) == {"D_s_n", "eps_e_n"}
+    assert st["D_s_n"].ci95 is None and st["eps_e_n"].ci95 is None and not st["eps_e_n"].identifiable
+    # R_s_n is orthogonal to the null direction: its interval is that of the reduced problem (eps_e_n dropped)
+    e = st["R_s_n"]
+    assert e.identifiable and e.ci95 is not None
+    red = np.linalg.inv(J[:, :2].T @ J[:, :2])
+    assert e.sigma_bar == pytest.approx(np.sqrt(red[0, 0]), rel=1e-8)
     J[:, 2] = 0.0
     st = statistics.compute(NAMES, est, J, r)
-    assert not st.valid and "zero sensitivity to eps_e_n" in st.reason
+    assert not st.valid and "zero sensitivity to eps_e_n" in st.reason and st.unidentifiable == ("eps_e_n",)
+    assert st["eps_e_n"].ci95 is None and st["D_s_n"].ci95 is not None
+
+
+def test_unidentifiable_directions_of_a_dependent_group_are_named() -> None:
+    rng = np.random.default_rng(3)
+    n = 60
+    names = ("R_s_n", "D_s_n", "R_f_n", "k_n", "eps_e_n")
+    base = rng.normal(size=(n, 3))
+    J = 30 * np.column_stack([base[:, 0], base[:, 1], base[:, 0] - base[:, 1] + 1e-13 * rng.normal(size=n),
+                              base[:, 0] + 2 * base[:, 1], base[:, 2]])
+    st = statistics.compute(names, np.full(5, 0.5), J, rng.normal(size=n))
+    assert not st.valid and len(st.null_space) == 2
+    assert set(st.unidentifiable) == {"R_s_n", "D_s_n", "R_f_n", "k_n"}
+    assert st["eps_e_n"].ci95 is not None and st["eps_e_n"].identifiable
+    assert st.covariance_identifiable is not None
 
 
 def test_parameter_at_bound_gets_a_flagged_one_sided_interval() -> None:
