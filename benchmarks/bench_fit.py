@@ -23,7 +23,7 @@ from battlab.identify import conventional
 from battlab.identify import fit as F
 from battlab.identify.forward import ForwardModel
 from battlab.identify.selection import greedy_d_optimal, information
-from battlab.identify.validation import discharge_profiles, format_table, rmse_table
+from battlab.identify.validation import cut_at_limit, discharge_profiles, format_table, rmse_table
 from battlab.identify.virtual import noise_free, synthesize
 from protocols.library import Library
 
@@ -67,7 +67,8 @@ def main() -> None:
     print(f"selection (stand-in D-optimal) {time.perf_counter() - t0:.1f} s: "
           + "; ".join(f"group {k + 1}: {[p.id for p in c]}" for k, c in enumerate(chosen)))
     clean = {p.id: noise_free(fm, truth, p, p.soc0) for c in chosen for p in c}
-    val_profiles = discharge_profiles(truth) + [(p, p.soc0) for p in ok if p.id not in used][:4]
+    val_profiles = [(cut_at_limit(fm, truth, p, s), s) for p, s in discharge_profiles(truth)]
+    val_profiles += [(p, p.soc0) for p in ok if p.id not in used][:4]
 
     def run(seed: int, verbose: bool) -> tuple[list[F.FitResult], F.FitResult | None]:
         stages = [F.Stage(g, tuple(synthesize(fm, truth, p, p.soc0, seed=seed * 10000 + int(p.id), clean=clean[p.id])
