@@ -161,12 +161,14 @@ class _Problem:
     """Residuals and Jacobian of eq. 41 for a set of experiments and fitted names, cached per θ̄."""
 
     def __init__(self, fm: ForwardModel, experiments: Sequence[Experiment], names: Sequence[str],
-                 theta_full: np.ndarray) -> None:
+                 theta_full: np.ndarray, soc_span: float = 0.0) -> None:
         self.fm = fm
         self.exps = list(experiments)
         self.names = tuple(names)
         self.idx = [parameters.NAMES.index(n) for n in self.names]
         self.base = np.asarray(theta_full, float).copy()
+        self.soc_span = float(soc_span)  # > 0: one start-SOC nuisance per experiment, soc0 ± soc_span
+        self.n_nuis = len(self.exps) if self.soc_span > 0 else 0
         self._key: bytes | None = None
         self._val: tuple[np.ndarray, np.ndarray, list[np.ndarray]] | None = None
         self.n_sim = 0
@@ -180,28 +182,49 @@ class _Problem:
         key = np.asarray(x, float).tobytes()
         if key == self._key and self._val is not None:
             return self._val
-        th = self.full(x)
+        x = np.asarray(x, float)
+        p = len(self.names)
+        th = self.full(x[:p])
         rs, js, preds = [], [], []
-        for e in self.exps:
-            out = self.fm.run(th, e.profile, e.soc0, ambient=e.ambient, T0=e.T0, sensitivities=self.names)
-            n = e.voltage.size
-            pred = np.empty(n)
-            S = np.zeros((n, len(self.names)))
-            k = out.voltage.size
-            if k:
-                pred[:k] = out.voltage
-                S[:k] = out.sensitivities
-                pred[k:] = out.voltage[-1]
-            else:
-                pred[:] = e.voltage[0] + 1.0  # nothing simulated: a large but finite residual
+        for i, e in enumerate(self.exps):
+            soc0 = self.soc_of(i, x)
+            pred, S = self._run(th, e, soc0, True)
             w = 1.0 / np.sqrt(e.variance)
             m = e.mask
+            if self.n_nuis:  # dV/du by a one-sided difference (the start SOC has no exact sensitivity)
+                h = 1e-3 if x[p + i] < 0.5 else -1e-3
+                p2, _ = self._run(th, e, soc0 + 2 * self.soc_span * h, False)
+                col = np.zeros((e.voltage.size, self.n_nuis))
+                col[:, i] = (p2 - pred) / h
+                S = np.hstack([S, col])
             rs.append(((pred - e.voltage) * w)[m])
             js.append((S * w[:, None])[m])
             preds.append(pred)
         self.n_sim += 1
         self._key, self._val = key, (np.concatenate(rs), np.vstack(js), preds)
         return self._val
+
+
+    def soc_of(self, i: int, x: np.ndarray) -> float:
+        e = self.exps[i]
+        if not self.n_nuis:
+            return e.soc0
+        return float(np.clip(e.soc0 + 2 * self.soc_span * (x[len(self.names) + i] - 0.5), 0.0, 1.0))
+
+    def _run(self, th: np.ndarray, e: Experiment, soc0: float, sens: bool) -> tuple[np.ndarray, np.ndarray]:
+        out = self.fm.run(th, e.profile, soc0, ambient=e.ambient, T0=e.T0, sensitivities=self.names if sens else ())
+        n = e.voltage.size
+        pred = np.empty(n)
+        S = np.zeros((n, len(self.names)))
+        k = out.voltage.size
+        if k:
+            pred[:k] = out.voltage
+            if sens:
+                S[:k] = out.sensitivities
+            pred[k:] = out.voltage[-1]
+        else:
+            pred[:] = e.voltage[0] + 1.0  # nothing simulated: a large but finite residual
+        return pred, S
 
 
 def _rmse(exps: Sequence[Experiment], preds: list[np.ndarray]) -> dict[str, float]:
@@ -222,11 +245,15 @@ def fit(
     forward: ForwardModel | None = None,
     start: Cell | None = None,
     stage: int = 1,
+    soc_span: float = 0.0,
 ) -> FitResult:
     """Fit the dynamic parameters ``names`` of ``cell`` to ``experiments`` (eq. 41 by LM, eqs. 42–43).
 
     ``start`` (default ``cell``) gives the start point; ``forward`` may be shared between fits of cells that
-    differ only in dynamic values (one compiled model). A fit that stops without meeting the stopping rule
+    differ only in dynamic values (one compiled model). ``soc_span`` > 0 adds one start-SOC nuisance parameter
+    per experiment (soc0 ± ``soc_span``); the statistics of ``names`` are then marginal over them (the Jacobian
+    projected off the nuisance columns) and ``extra["soc0"]`` holds the fitted start SOCs. A fit that stops
+    without meeting the stopping rule
     returns its best point with ``convergence.converged = False`` and the reason.
     """
     names = parameters.check_names(list(names))
@@ -238,8 +265,8 @@ def fit(
     fm = forward or ForwardModel(cell)
     start = start or cell
     theta_full = np.array([start.normalised(n) for n in parameters.NAMES])
-    prob = _Problem(fm, experiments, names, theta_full)
-    x0 = np.clip(theta_full[prob.idx], 1e-6, 1 - 1e-6)
+    prob = _Problem(fm, experiments, names, theta_full, soc_span)
+    x0 = np.r_[np.clip(theta_full[prob.idx], 1e-6, 1 - 1e-6), np.full(prob.n_nuis, 0.5)]
     t0 = time.perf_counter()
     r0, _, preds0 = prob.evaluate(x0)
     cost0 = 0.5 * float(r0 @ r0)
@@ -264,6 +291,13 @@ def fit(
     }
     reason = f"{reasons.get(status, 'unknown')}: {msg}" if status > 0 else (err or f"not converged: {reasons[0]}")
     seconds = time.perf_counter() - t0
+    p = len(names)
+    extra: dict[str, object] = {}
+    if prob.n_nuis:
+        extra["soc0"] = {e.name: prob.soc_of(i, x) for i, e in enumerate(prob.exps)}
+        Q, _ = np.linalg.qr(J[:, p:])
+        J = J[:, :p] - Q @ (Q.T @ J[:, :p])  # marginal information of the physical parameters
+        x = x[:p]
     at_bound = [("lower" if v < opt.bound_tol else "upper" if v > 1 - opt.bound_tol else None) for v in x]
     st = statistics.compute(names, x, J, -r, at_bound, rcond=opt.rcond)
     th = prob.full(x)
@@ -272,6 +306,7 @@ def fit(
     return FitResult(
         fitted, names, th[prob.idx], st, conv, _rmse(experiments, preds), _rmse(experiments, preds0),
         _abs_errors(experiments, preds0), _abs_errors(experiments, preds), tuple(e.name for e in experiments), stage,
+        extra,
     )
 
 

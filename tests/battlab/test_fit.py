@@ -71,6 +71,21 @@ def test_groupwise_fit_is_cumulative(setup) -> None:
     assert all(res[1].statistics[n].covers(P.SPECS[n].truth) for n in NAMES)
 
 
+def test_start_soc_nuisance_is_fitted_and_marginalised(setup) -> None:
+    cell, truth, fm, profs, clean = setup
+    exps = [synthesize(fm, truth, p, p.soc0, seed=11 + k, clean=clean[p.id]) for k, p in enumerate(profs)]
+    off = [F.Experiment(e.name, e.profile, e.voltage, e.soc0 + d, e.variance, truth=e.truth)
+           for e, d in zip(exps, (0.02, -0.015), strict=True)]  # start SOC guessed wrong
+    res = F.fit(cell, off, NAMES, forward=fm, soc_span=0.05)
+    socs = res.extra["soc0"]
+    for e in exps:
+        assert socs[e.name] == pytest.approx(e.soc0, abs=4e-3)
+    assert res.statistics.valid and len(res.theta_bar) == len(NAMES)
+    plain = F.fit(cell, exps, NAMES, forward=fm)
+    for n in NAMES:  # marginal intervals are at least as wide as with the start SOC known
+        assert res.statistics[n].sigma_bar >= plain.statistics[n].sigma_bar * (1 - 1e-6)
+
+
 @pytest.mark.slow
 def test_interval_coverage_over_seeds(setup) -> None:
     cell, truth, fm, profs, clean = setup
