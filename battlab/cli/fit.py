@@ -145,12 +145,15 @@ def fit(data: tuple[str, ...], cell_name: str, plan: str | None, params: str, oc
         summary["converged"] = bool(summary["converged"] and all(r.convergence.converged for r in results))
         for e in last.statistics.estimates:
             summary["parameters"][e.name] = {"value": e.value, "ci95": list(e.ci95) if e.ci95 else [None, None],
-                                             "at_bound": e.at_bound is not None}
+                                             "at_bound": e.at_bound is not None, "identifiable": e.identifiable}
         summary["rmse_mV"].update(last.rmse_mV)
         summary["stages"] = [r.report() for r in results]
         if not last.statistics.valid:
-            click.echo(f"warning: no confidence intervals: {last.statistics.reason}", err=True)
+            click.echo(f"warning: {last.statistics.reason}", err=True)
         extra["confidence_intervals"] = {e.name: list(e.ci95) for e in last.statistics.estimates if e.ci95}
+        if last.statistics.unidentifiable:
+            extra["not_identifiable"] = list(last.statistics.unidentifiable)
+            extra["null_space"] = [dict(d) for d in last.statistics.null_space]
         extra["at_bound"] = {e.name: e.at_bound is not None for e in last.statistics.estimates}
         extra["fit_report"] = {"converged": summary["converged"], "iterations": last.convergence.iterations,
                                "cost": last.convergence.cost, "s2": last.statistics.s2,

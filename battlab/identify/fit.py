@@ -146,12 +146,14 @@ class FitResult:
             "statistics_note": st.reason,
             "s2": st.s2,
             "condition": st.condition,
+            "not_identifiable": list(st.unidentifiable),
+            "null_space": [dict(d) for d in st.null_space],
             "rmse_mV": self.rmse_mV,
             "rmse_before_mV": self.rmse_before_mV,
             "estimates": {
                 e.name: {"value": e.value, "ci95": list(e.ci95) if e.ci95 else None,
                          "ci95_scaled": list(e.ci95_scaled) if e.ci95_scaled else None,
-                         "sigma": e.sigma, "at_bound": e.at_bound}
+                         "sigma": e.sigma, "at_bound": e.at_bound, "identifiable": e.identifiable}
                 for e in st.estimates
             },
         }
