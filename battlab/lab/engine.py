@@ -282,6 +282,7 @@ class RunEngine:
                         raise Abort("communication", f"{what} failed after {attempt + 1} attempts: {exc}") from exc
                     self.stats.retries += 1
                     log.warning("%s failed (%s); retry %d in %g s", what, exc, attempt + 1, delay)
+                    self._resync(fn)
                     self.clock.sleep(delay)
                     delay *= 2
                 except InstrumentFault as exc:
@@ -292,6 +293,18 @@ class RunEngine:
         finally:
             if w0 is not None:
                 self.stats.io_wall_s += time.perf_counter() - w0
+
+    @staticmethod
+    def _resync(fn: Callable[..., Any]) -> None:
+        """After the driver gave up on an exchange, drop a late reply still on its way (reconnect the link) so
+        that the retry does not read it as its own."""
+        adapter = getattr(getattr(fn, "__self__", None), "adapter", None)
+        recover = getattr(adapter, "recover", None)
+        if callable(recover):
+            try:
+                recover()
+            except (InstrumentError, OSError) as exc:
+                log.warning("link resync failed: %s", exc)
 
     def _optional(self, what: str, fn: Callable[..., Any], *args: Any) -> bool:
         """A setting the dialect may not support (InputError): noted, not fatal."""

@@ -37,7 +37,7 @@ class ProgressDisplay(Subscriber):
         table = Table.grid(padding=(0, 2))
         table.add_column(style="bold")
         table.add_column()
-        table.add_row("plan", self.name)
+        table.add_row("plan", escape(self.name))
         if self._step is not None:
             e = self._step.entry
             table.add_row("step", escape(f"{e.entry + 1} of {self.n_entries}: {e.label} [{self._step.kind}]"))

@@ -310,3 +310,37 @@ def test_recover_prefers_the_most_complete_copy(tmp_path: Path) -> None:
         w.close()
     data = logfile.recover(path)
     assert data is not None and len(data) == 5
+
+
+# -- progress display -----------------------------------------------------------------------------------------
+def test_progress_display_on_a_terminal_shows_the_step_and_the_latest_sample() -> None:
+    import io
+    import re
+
+    from rich.console import Console
+
+    from battlab.lab.documents import RunStart, RunStop, StepStart
+    from battlab.lab.plan import PlanEntry
+    from battlab.lab.progress import ProgressDisplay
+    from protocols.protocol import Rest
+
+    buf = io.StringIO()
+    shown = ProgressDisplay("plan [1]", 3, console=Console(file=buf, force_terminal=True, width=100), refresh_s=0)
+    shown.start(RunStart(1, logfile.COLUMNS, {}))
+    entry = PlanEntry(1, 2, 1, Rest(("time >= 10",), "rest [a]"))
+    shown.step_start(StepStart(entry, 2, 0.0, 0, "rest", 10.0))
+    shown.event((3600.0, 0.0, 4.0, 3.7012, -1.25, 26.5, 25.0, 2.0, 2.0, 1.0, 0.0))
+    shown.stop(RunStop("completed", None))
+    text = re.sub(r"\x1b\[[0-9;?]*[a-zA-Z]", "", buf.getvalue())
+    for part in (
+        "plan [1]",
+        "2 of 3: rest [a] [rest]",
+        "4 s of 10 s",
+        "1.00 h",
+        "V 3.7012 V",
+        "I -1.250 A",
+        "T 26.5 degC",
+        "1 rows",
+        "run completed",
+    ):
+        assert part in text
