@@ -53,12 +53,28 @@ class LiveCell:
         self.voltage, self.T_core, self.T_surface = self._advance(0.0, 0.0, T0, first=True)
 
     def _advance(self, I_dis: float, dt: float, ambient: float, first: bool = False) -> tuple[float, float, float]:
+        """Advance; a step that fails is retried from the same state, restarting with a 4× and then 16× smaller
+        first step."""
+        saved = (self._y.copy(), self._xp.copy(), self._I_dis, self._h_prev, self._h_allowed)
+        for attempt in range(3):
+            try:
+                dt_first = None if attempt == 0 else self.settings.dt_first / 4**attempt
+                return self._advance_once(I_dis, dt, ambient, first, dt_first)
+            except RuntimeError:
+                if attempt == 2:
+                    raise
+                self._y, self._xp = saved[0].copy(), saved[1].copy()
+                self._I_dis, self._h_prev, self._h_allowed = saved[2:]
+        raise AssertionError("unreachable")
+
+    def _advance_once(self, I_dis: float, dt: float, ambient: float, first: bool,
+                      dt_first: float | None) -> tuple[float, float, float]:
         s = self.settings
-        restart = first or I_dis != self._I_dis
+        restart = first or I_dis != self._I_dis or dt_first is not None
         hs: list[float] = [0.0] if first else []
         ws: list[float] = [0.0] if first else []
         if restart:
-            self._h_allowed = s.dt_first
+            self._h_allowed = s.dt_first if dt_first is None else dt_first
         remaining = dt
         h_prev = 0.0 if restart else self._h_prev
         while remaining > 1e-12 * max(1.0, dt):

@@ -98,3 +98,23 @@ def test_cells_differing_in_identified_parameters_share_the_compiled_model(cell:
     assert other.static_hash() == cell.static_hash() and other.hash() != cell.hash()
     assert solver.native_stepper(cell, Mesh(), False) is solver.native_stepper(other, Mesh(), False)
     assert cell.with_values(L_n=8e-5).static_hash() != cell.static_hash()
+
+
+def test_live_cell_retries_a_failed_step_with_smaller_steps(
+    cell: battlab.Cell, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    live = LiveCell(cell, 0.5)
+    expected = LiveCell(cell, 0.5).step(-5.4, 1.0, 298.15)[0]
+    real = LiveCell._advance_once
+    calls: list[float | None] = []
+
+    def flaky(self: LiveCell, *args: object) -> tuple[float, float, float]:
+        calls.append(args[-1])  # dt_first of this attempt
+        if len(calls) == 1:
+            raise RuntimeError("cell model: step did not converge")
+        return real(self, *args)
+
+    monkeypatch.setattr(LiveCell, "_advance_once", flaky)
+    v, _ = live.step(-5.4, 1.0, 298.15)
+    assert calls == [None, live.settings.dt_first / 4]
+    assert v == pytest.approx(expected, abs=2e-3)  # a finer first step: a slightly different discretisation
