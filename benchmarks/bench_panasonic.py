@@ -83,10 +83,10 @@ def main() -> None:
     c = res.convergence
     print(f"fit: {c.iterations} evaluations, {c.seconds:.0f} s, cost {c.cost_start:.4g} -> {c.cost:.4g}, "
           f"{c.reason}")
+    print("  name          start        estimate   95 % (Cov·s², the residuals are model error, not noise)")
     for e in res.statistics.estimates:
-        ci = f"[{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]" if e.ci95 else "none"
-        print(f"  {e.name:12s} {float(cell.get(e.name)):11.4g} -> {e.value:11.4g}  "
-              f"95 % {ci} {e.at_bound or ''}")
+        ci = f"[{e.ci95_scaled[0]:.4g}, {e.ci95_scaled[1]:.4g}]" if e.ci95_scaled else "none"
+        print(f"  {e.name:12s} {float(cell.get(e.name)):11.4g} -> {e.value:11.4g}  {ci} {e.at_bound or ''}")
     st = res.statistics
     print(f"  s2 = {st.s2:.3g} (weighted residual variance; >> 1 means model error dominates the noise)"
           + (f"; {st.reason}" if st.reason else ""))
@@ -103,6 +103,11 @@ def main() -> None:
         for label, sel in (("whole test", slice(None)), ("to 90 % of its charge", m)):
             rm = [float(1e3 * np.sqrt(np.nanmean((p[sel] - e.voltage[sel]) ** 2))) for p in (before, after)]
             print(f"  {e.name:18s} {rm[0]:14.2f} {rm[1]:12.2f}   (HWFET prediction, {label})")
+        o = fm.run(fm.theta_of(res.cell), e.profile, e.soc0, ambient=e.ambient, T0=e.T0)
+        k = o.voltage.size
+        print(f"  {e.name:18s} {'':14s} {1e3 * np.sqrt(np.mean((o.voltage - e.voltage[:k]) ** 2)):12.2f}   (HWFET "
+              f"prediction until the fitted model stops: {o.ended_by or 'end'} at {e.profile.t[k - 1]:.0f} s of "
+              f"{e.profile.t[-1]:.0f} s)")
         err = 1e3 * (after - e.voltage)
         q = len(err) // 10
         print("  HWFET error by tenth of the test [mV RMSE]: "
