@@ -160,6 +160,9 @@ def fit(data: tuple[str, ...], cell_name: str, plan: str | None, params: str, oc
                                "rmse_mV": last.rmse_mV, "reason": last.convergence.reason}
     cell.renamed(out.name.removesuffix(".json").removesuffix(".bpx")).to_bpx(out, **extra)
     summary_path = out.with_name("summary.json")
+    if plan is not None and Path(plan).with_name("summary.json").resolve() == summary_path.resolve():
+        click.echo(f"warning: {summary_path} (the design's summary) is replaced by the fit's summary; write the "
+                   "fitted cell to another directory to keep both", err=True)
     summary_path.write_text(json.dumps(summary, indent=2, default=_json_default))
     click.echo(f"wrote {out} and {summary_path}")
 

@@ -56,3 +56,28 @@ def test_bad_input_is_one_line(tmp_path) -> None:
     r = CliRunner().invoke(main, ["fit", str(p), "--cell", "nca18650", "-o", str(tmp_path / "c.json")])
     assert r.exit_code == 2
     assert "Voltage / V" in r.output and "sample 4" in r.output and "Traceback" not in r.output
+
+
+def test_fit_consumes_a_design_plan_summary(tmp_path) -> None:
+    """``--plan``: the groups (parameters, selected profiles) come from the design's summary.json beside it."""
+    import tomli_w
+
+    from protocols.concatenate import concatenate
+
+    a, b = _virtual_csv(tmp_path, 19, 3), _virtual_csv(tmp_path, 37, 4)
+    lib = Library.build()
+    plan = tmp_path / "plan.toml"
+    plan.write_text(tomli_w.dumps(concatenate([lib[19], lib[37]], name="plan").protocol.to_dict()))
+    (tmp_path / "summary.json").write_text(json.dumps({"groups": [
+        {"parameters": ["R_s_n"], "selected": ["p19"], "logdet": 1.0},
+        {"parameters": ["R_s_n", "R_s_p"], "selected": ["p37"], "logdet": 2.0},
+    ]}))
+    (tmp_path / "fit").mkdir()
+    out = tmp_path / "fit" / "fitted.json"
+    r = CliRunner().invoke(main, ["fit", a, b, "--cell", "nca18650", "--plan", str(plan), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "groups" in json.loads((tmp_path / "summary.json").read_text())  # the design's summary is kept
+    s = json.loads((tmp_path / "fit" / "summary.json").read_text())
+    stages = s["stages"]
+    assert [st["parameters"] for st in stages] == [["R_s_n"], ["R_s_n", "R_s_p"]]
+    assert stages[0]["experiments"] == ["p19"] and stages[1]["experiments"] == ["p19", "p37"]
