@@ -14,16 +14,18 @@ class Mesh:
     """Cell counts: ``n_n``, ``n_s``, ``n_p`` finite volumes in the negative electrode, separator, positive
     electrode (uniform within each region) and ``n_r`` radial shells per particle.
 
-    Radial shells are equal-volume in the normalised radius ξ = r/R_s ∈ [0, 1] blended with uniform spacing
-    (``grading`` = 1: equal volume, 0: uniform): thin shells sit at the surface, where the gradients are, so few
-    shells suffice; the radius R_s stays a parameter of the equations (eq. A1 in ξ), not of the mesh.
+    Radial shells blend equal-volume spacing in the normalised radius ξ = r/R_s ∈ [0, 1] with uniform spacing
+    (``grading`` = 1: equal volume, 0: uniform): thinner shells sit at the surface, where the gradients are, so
+    few shells suffice; the radius R_s stays a parameter of the equations (eq. A1 in ξ), not of the mesh. The
+    default 0.5 keeps the centre resolved too (the end-of-discharge knee): on the BPX NMC cell's 1C discharge the
+    default mesh is 0.16 mV RMSE from the converged one (0.80 mV with equal-volume shells).
     """
 
     n_n: int = 10
     n_s: int = 6
     n_p: int = 10
     n_r: int = 12
-    grading: float = 1.0
+    grading: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("n_n", "n_s", "n_p", "n_r"):
