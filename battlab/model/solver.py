@@ -265,7 +265,6 @@ def guess_algebraic(model: DFN, x: np.ndarray, I_dis: float) -> np.ndarray:
     """A starting point for the algebraic Newton solve: equilibrium potentials, uniform reaction."""
     cell, lay = model.cell, model.layout
     sl = lay.slices()
-    m = model.mesh
     sn = float(np.mean(x[sl["sn"]]))
     sp = float(np.mean(x[sl["sp"]]))
     Un, Up = float(cell.fn("U_n", sn)), float(cell.fn("U_p", sp))
@@ -278,7 +277,6 @@ def guess_algebraic(model: DFN, x: np.ndarray, I_dis: float) -> np.ndarray:
     for e, sign in (("n", 1.0), ("p", -1.0)):
         a = 3.0 * float(cell[f"eps_s_{e}"]) / float(cell[f"R_s_{e}"])
         z[sl[f"i_{e}"].start - off : sl[f"i_{e}"].stop - off] = sign * I_dis / (A * a * float(cell[f"L_{e}"]))
-    del m
     return z
 
 
