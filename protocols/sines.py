@@ -53,10 +53,8 @@ def sine_profile(
     per_period = _whole(1.0 / (spec.frequency_hz * dt), f"samples per period at {spec.frequency_hz:g} Hz")
     periods = _whole(spec.total_s * spec.frequency_hz, f"periods in {spec.total_s:g} s")
     phase = 2.0 * np.pi * np.arange(per_period) / per_period
-    if spec.direction is Direction.BOTH:
-        one = -np.sin(phase)
-    else:
-        one = spec.direction.sign * (1.0 - np.cos(phase)) / 2.0
+    both = spec.direction is Direction.BOTH
+    one = -np.sin(phase) if both else spec.direction.sign * (1.0 - np.cos(phase)) / 2.0
     shape = np.tile(one, periods)
     t = np.arange(shape.size + 1) * dt
     meta.setdefault("kind", "sine")
