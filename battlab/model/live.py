@@ -78,12 +78,7 @@ class LiveCell:
         remaining = dt
         h_prev = 0.0 if restart else self._h_prev
         while remaining > 1e-12 * max(1.0, dt):
-            if remaining <= 1.2 * self._h_allowed:
-                h = remaining
-            elif remaining <= 2.0 * self._h_allowed:
-                h = remaining / 2.0
-            else:
-                h = self._h_allowed
+            h = solver.next_step(remaining, self._h_allowed)
             hs.append(h)
             ws.append(0.0 if h_prev == 0.0 else h / h_prev)
             h_prev = h

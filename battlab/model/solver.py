@@ -191,6 +191,16 @@ class Schedule:
     sample_step: np.ndarray
 
 
+def next_step(remaining: float, h_allowed: float) -> float:
+    """The next step [s] in what remains of a sample interval: all of it within 1.2 h_allowed, half of it within
+    2 h_allowed, else h_allowed (so no sliver step ends an interval)."""
+    if remaining <= 1.2 * h_allowed:
+        return remaining
+    if remaining <= 2.0 * h_allowed:
+        return remaining / 2.0
+    return h_allowed
+
+
 def schedule(t: np.ndarray, I_dis: np.ndarray, i_1c: float, s: Settings) -> Schedule:
     """Steps aligned with every sample, so a current step is never straddled (zero-order hold)."""
     hs: list[float] = []
@@ -205,12 +215,7 @@ def schedule(t: np.ndarray, I_dis: np.ndarray, i_1c: float, s: Settings) -> Sche
             h_allowed = s.dt_first
         remaining = float(t[k + 1] - t[k])
         while remaining > 1e-12 * max(1.0, float(t[k + 1])):
-            if remaining <= 1.2 * h_allowed:
-                h = remaining
-            elif remaining <= 2.0 * h_allowed:
-                h = remaining / 2.0
-            else:
-                h = h_allowed
+            h = next_step(remaining, h_allowed)
             w = 0.0 if restart or h_prev == 0.0 else h / h_prev
             hs.append(h)
             ws.append(w)
