@@ -17,7 +17,7 @@ of steps), so Python touches the loop only once per chunk.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -61,7 +61,6 @@ class Compiled:
     out1: ca.Function  # one sample
     alg: ca.Function  # consistent algebraic state
     build_seconds: float = 0.0
-    timings: dict[str, float] = field(default_factory=dict)
 
 
 def _residual_functions(model: DFN) -> tuple[ca.Function, ca.Function, ca.Function]:
@@ -199,6 +198,22 @@ def next_step(remaining: float, h_allowed: float) -> float:
     if remaining <= 2.0 * h_allowed:
         return remaining / 2.0
     return h_allowed
+
+
+def split_step(
+    h: np.ndarray, w: np.ndarray, cur: np.ndarray, pos: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Replace the failed step ``pos`` by h/8, h/8, h/4, h/2 (restarting with backward Euler); the step after
+    keeps BDF2 only if its step ratio stays ≤ 2.4 (zero-stable), else it restarts too."""
+    hb = h[pos]
+    parts = np.array([hb / 8, hb / 8, hb / 4, hb / 2])
+    h = np.concatenate([h[:pos], parts, h[pos + 1 :]])
+    w = np.concatenate([w[:pos], [0.0, 1.0, 2.0, 2.0], w[pos + 1 :]])
+    cur = np.concatenate([cur[:pos], np.repeat(cur[pos], 4), cur[pos + 1 :]])
+    if pos + 4 < w.size and w[pos + 4] != 0.0:
+        ratio = h[pos + 4] / parts[-1]
+        w[pos + 4] = ratio if ratio <= 2.4 else 0.0
+    return h, w, cur
 
 
 def schedule(t: np.ndarray, I_dis: np.ndarray, i_1c: float, s: Settings) -> Schedule:
@@ -382,12 +397,7 @@ def run(
             if hb < 1e-6:
                 ended_by = f"solver: Newton did not converge at t = {float(np.sum(h[:pos])):.6g} s"
                 break
-            parts = np.array([hb / 8, hb / 8, hb / 4, hb / 2])
-            h = np.concatenate([h[:pos], parts, h[pos + 1 :]])
-            w = np.concatenate([w[:pos], [0.0, 1.0, 2.0, 2.0], w[pos + 1 :]])
-            cur = np.concatenate([cur[:pos], np.repeat(cur[pos], 4), cur[pos + 1 :]])
-            if pos + 4 < len(w) and w[pos + 4] != 0.0:
-                w[pos + 4] = min(h[pos + 4] / parts[-1], 2.4) if h[pos + 4] / parts[-1] <= 2.4 else 0.0
+            h, w, cur = split_step(h, w, cur, pos)
             sample_step = np.where(sample_step >= pos, sample_step + 3, sample_step)
     n_keep = last_sample + 1
     return Trajectory(
@@ -512,15 +522,9 @@ def run_native(
         if hb < 1e-6:
             ended_by = f"solver: Newton did not converge at t = {float(np.sum(h[:pos])):.6g} s"
             break
-        parts = np.array([hb / 8, hb / 8, hb / 4, hb / 2])
-        h = np.concatenate([h[:pos], parts, h[pos + 1 :]])
-        w = np.concatenate([w[:pos], [0.0, 1.0, 2.0, 2.0], w[pos + 1 :]])
-        cur = np.concatenate([cur[:pos], np.repeat(cur[pos], 4), cur[pos + 1 :]])
+        h, w, cur = split_step(h, w, cur, pos)
         out_idx = np.concatenate([out_idx[:pos], [-1, -1, -1], out_idx[pos:]])
         out_I = np.concatenate([out_I[:pos], [0.0, 0.0, 0.0], out_I[pos:]])
-        if pos + 4 < w.size and w[pos + 4] != 0.0:
-            ratio = h[pos + 4] / parts[-1]
-            w[pos + 4] = ratio if ratio <= 2.4 else 0.0
     # samples written before the stop
     written = out_idx[:pos][out_idx[:pos] >= 0]
     n_keep = int(written.max()) + 1 if written.size else 0

@@ -118,3 +118,18 @@ def test_live_cell_retries_a_failed_step_with_smaller_steps(
     v, _ = live.step(-5.4, 1.0, 298.15)
     assert calls == [None, live.settings.dt_first / 4]
     assert v == pytest.approx(expected, abs=2e-3)  # a finer first step: a slightly different discretisation
+
+
+def test_split_step_keeps_the_time_grid_and_a_stable_step_ratio() -> None:
+    h = np.array([1.0, 1.0, 1.0])
+    w = np.array([0.0, 1.0, 1.0])
+    cur = np.array([1.0, 2.0, 2.0])
+    h2, w2, c2 = solver.split_step(h, w, cur, 1)
+    np.testing.assert_allclose(h2, [1.0, 0.125, 0.125, 0.25, 0.5, 1.0])
+    assert h2.sum() == pytest.approx(h.sum())
+    np.testing.assert_allclose(c2, [1.0, 2.0, 2.0, 2.0, 2.0, 2.0])
+    assert w2[1] == 0.0  # restart with backward Euler
+    np.testing.assert_allclose(w2[2:5], h2[2:5] / h2[1:4])
+    assert w2[5] == pytest.approx(2.0)  # 1.0 after 0.5: still zero-stable
+    h3, w3, _ = solver.split_step(np.array([4.0, 10.0]), np.array([0.0, 1.0]), np.array([1.0, 1.0]), 0)
+    assert w3[-1] == 0.0  # 10 s after 2 s would be a ratio of 5: restart instead
