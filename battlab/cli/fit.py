@@ -134,10 +134,13 @@ def fit(data: tuple[str, ...], cell_name: str, plan: str | None, params: str, oc
         fm = ForwardModel(cell, v_margin=0.15)
         stages = _stages(params, plan, exps)
 
+        stem = out.name.removesuffix(".json").removesuffix(".bpx")
+
         def show(k: int, r: F.FitResult) -> None:
             c = r.convergence
             click.echo(f"stage {k}: {len(r.names)} parameters, {c.iterations} evaluations, cost {c.cost_start:.4g} "
                        f"-> {c.cost:.4g}, |g| {c.gradient_norm:.3g}, {c.reason}")
+            _stage_figures(r, out.with_name(f"{stem}.stage{k}"))
 
         results = F.fit_groupwise(cell, stages, options=F.Options(max_nfev=max_iter), forward=fm, progress=show)
         last = results[-1]
@@ -145,12 +148,17 @@ def fit(data: tuple[str, ...], cell_name: str, plan: str | None, params: str, oc
         summary["converged"] = bool(summary["converged"] and all(r.convergence.converged for r in results))
         for e in last.statistics.estimates:
             summary["parameters"][e.name] = {"value": e.value, "ci95": list(e.ci95) if e.ci95 else [None, None],
-                                             "at_bound": e.at_bound is not None, "identifiable": e.identifiable}
+                                             "at_bound": e.at_bound is not None, "identifiable": e.identifiable,
+                                             "set_identified": e.set_identified}
         summary["rmse_mV"].update(last.rmse_mV)
         summary["stages"] = [r.report() for r in results]
+        _print_estimates(last)
         if not last.statistics.valid:
             click.echo(f"warning: {last.statistics.reason}", err=True)
         extra["confidence_intervals"] = {e.name: list(e.ci95) for e in last.statistics.estimates if e.ci95}
+        if last.statistics.invariants:
+            extra["invariants"] = {i.name: {"value": i.value, "ci95": list(i.ci95), "definition": i.definition}
+                                   for i in last.statistics.invariants}
         if last.statistics.unidentifiable:
             extra["not_identifiable"] = list(last.statistics.unidentifiable)
             extra["null_space"] = [dict(d) for d in last.statistics.null_space]
@@ -165,6 +173,38 @@ def fit(data: tuple[str, ...], cell_name: str, plan: str | None, params: str, oc
                    "fitted cell to another directory to keep both", err=True)
     summary_path.write_text(json.dumps(summary, indent=2, default=_json_default))
     click.echo(f"wrote {out} and {summary_path}")
+
+
+def _stage_figures(r: Any, prefix: Path) -> None:
+    """Fig. 7 for one stage: CDF of |voltage error| before and after, and the correlation matrix."""
+    from battlab.identify.fit import _correlation
+    from battlab.identify.validation import plot_cdf, plot_correlation
+
+    plot_cdf({"before": r.errors_before_mV, "after": r.errors_after_mV}, f"{prefix}.error_cdf.png",
+             f"stage {r.stage}: |voltage error| before and after")
+    st = r.statistics
+    corr = st.correlation if st.correlation is not None else _correlation(st.covariance_identifiable)
+    if corr is not None:
+        plot_correlation(st.names, corr, f"{prefix}.correlation.png", f"stage {r.stage}: parameter correlation")
+
+
+def _print_estimates(r: Any) -> None:
+    """The final stage's estimates: value, 95 % interval, flags."""
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(title=f"identified parameters (stage {r.stage}; s² = {r.statistics.s2:.3g})")
+    for col in ("parameter", "value", "95 % interval", "note"):
+        t.add_column(col)
+    for e in r.statistics.estimates:
+        ci = f"[{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]" if e.ci95 else "-"
+        note = ("symmetry orbit (set-identified)" if e.set_identified else
+                "not identifiable" if not e.identifiable else "")
+        note += f" at {e.at_bound} bound" + ("" if e.set_identified else " (one-sided)") if e.at_bound else ""
+        t.add_row(e.name, f"{e.value:.4g}", ci, note.strip())
+    for i in r.statistics.invariants:
+        t.add_row(i.name, f"{i.value:.4g}", f"[{i.ci95[0]:.4g}, {i.ci95[1]:.4g}]", f"invariant {i.definition}")
+    Console(width=110).print(t)
 
 
 def _json_default(obj: Any) -> Any:

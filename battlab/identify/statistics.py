@@ -15,9 +15,13 @@ With the weighted Jacobian J_w = W^½ ∂ŷ/∂θ̄ and weighted residuals r_w =
   ``Estimate.identifiable`` False. The others are estimable functions: their variances come from the
   pseudo-inverse (the covariance on the identifiable subspace, ``covariance_identifiable``; it equals the
   covariance of the reduced problem with any one parameter of each null direction held fixed) and their
-  intervals are valid. ``covariance`` stays None. (With all 18 parameters, R_s, D_s, R_f and k of each electrode
-  are dependent: R_s acts through R_s²/D_s and a_s = 3ε_s/R_s, and near-linear kinetics let R_f and k absorb
-  a_s.)
+  intervals are valid. ``covariance`` stays None.
+* With all 18 parameters the null directions are the model's exact scaling symmetry (one per electrode,
+  :mod:`battlab.identify.symmetry`): when all four of R_s, D_s, k, R_f of an electrode are fitted, their
+  identifiable invariants (τ = R_s²/D_s, κ = k/R_s, ρ = R_f·R_s) get intervals (``invariants``) and the four
+  parameters get set-identified intervals (every value on an orbit consistent with the invariants' intervals
+  and all bounds; ``Estimate.identifiable`` False, ``Estimate.set_identified`` True), never intervals from the
+  singular matrix.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ import numpy as np
 from scipy import stats as _st
 
 from battlab import parameters
+from battlab.identify import symmetry
 
 #: Relative singular value below which a direction counts as unidentifiable (the 18-parameter problem has two
 #: directions near 1e-11 and the next at about 1e-4).
@@ -50,7 +55,8 @@ class Estimate:
     ci95: tuple[float, float] | None
     ci95_scaled: tuple[float, float] | None
     at_bound: str | None  # "lower" | "upper" | None
-    identifiable: bool = True  # False: in a null direction of the information matrix (no σ, no interval)
+    identifiable: bool = True  # False: in a null direction of the information matrix (no σ)
+    set_identified: bool = False  # ci95 is the symmetry orbit's interval (:mod:`battlab.identify.symmetry`)
 
     def covers(self, value: float) -> bool | None:
         """Whether a physical value lies in the 95 % interval (None without an interval)."""
@@ -80,6 +86,7 @@ class Statistics:
     unidentifiable: tuple[str, ...] = ()
     null_space: tuple[dict[str, float], ...] = ()  # unidentifiable directions, column-scaled θ̄
     covariance_identifiable: np.ndarray | None = None  # pseudo-inverse (p, p), valid between estimable parameters
+    invariants: tuple[symmetry.Invariant, ...] = ()  # identifiable combinations of symmetric parameters
 
     def __getitem__(self, name: str) -> Estimate:
         for e in self.estimates:
@@ -189,6 +196,20 @@ def compute(
         ci = _interval(nm, float(th[k]), tval * sb, bound[k])
         ci_s = _interval(nm, float(th[k]), tval * sb * np.sqrt(s2), bound[k])
         est.append(Estimate(nm, value, float(th[k]), sb, spec.dvalue_dnormalised(value) * sb, ci, ci_s, bound[k]))
+    invs: dict[str, symmetry.Invariant] = {}
+    electrodes = symmetry.complete_electrodes(names)
+    if electrodes:  # invariants from the pseudo-inverse of all columns (a bound parameter moves with its orbit)
+        na = np.linalg.norm(J, axis=0)
+        na[na == 0] = 1.0
+        _, sa, Va = np.linalg.svd(J / na, full_matrices=False)
+        ka = sa > rcond * sa[0]
+        cov_all = (Va[ka].T / sa[ka] ** 2) @ Va[ka] / np.outer(na, na)
+        invs = symmetry.invariants(names, th, cov_all, tval)
+        orbit = symmetry.orbit_intervals(invs, electrodes)
+        for k, nm in enumerate(names):
+            if nm in orbit:
+                e = est[k]
+                est[k] = Estimate(nm, e.value, e.theta_bar, None, None, orbit[nm], None, e.at_bound, False, True)
     notes = []
     directions: tuple[dict[str, float], ...] = ()
     unident = tuple(nm for k, nm in enumerate(names) if not ok[k])
@@ -199,9 +220,14 @@ def compute(
                                      if abs(c) > 0.01) for dd in directions)
         notes.append(
             f"singular information matrix ({len(null)} null direction(s), condition {cond:.3g}): the combination(s) "
-            f"{combos} are not identifiable from these data; no intervals for {', '.join(unident)}; the other "
-            "intervals use the covariance on the identifiable subspace"
+            f"{combos} are not identifiable from these data; no covariance intervals for {', '.join(unident)}; "
+            "the other intervals use the covariance on the identifiable subspace"
         )
+    if invs:
+        notes.append("R_s, D_s, k, R_f of electrode(s) " + ", ".join(electrodes) + " are moved by the model's exact "
+                     "scaling symmetry: their intervals are set-identified (orbits consistent with the invariants "
+                     + ", ".join(f"{i.name} = {i.value:.4g} [{i.ci95[0]:.4g}, {i.ci95[1]:.4g}]" for i in invs.values())
+                     + " and the bounds)")
     if (~free).any():
         notes.append("one-sided intervals for parameters at a bound: " + ", ".join(
             f"{nm} ({b})" for nm, b in zip(names, bound, strict=True) if b
@@ -212,5 +238,5 @@ def compute(
     return Statistics(
         names, th, n, dof, tval, None if singular else cov, None if singular else cov * s2,
         None if singular else corr_full, s2, cond, tuple(est), not singular, "; ".join(notes) or None,
-        unident, directions, cov,
+        unident, directions, cov, tuple(invs.values()),
     )

@@ -92,6 +92,32 @@ def plot_cdf(errors: Mapping[str, np.ndarray], path: str | Path, title: str = ""
     return Path(path)
 
 
+def plot_correlation(names: Sequence[str], correlation: np.ndarray, path: str | Path, title: str = "") -> Path:
+    """Heat map of a parameter correlation matrix (blank where a parameter is not identifiable)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    c = np.ma.masked_invalid(np.asarray(correlation, float))
+    n = len(names)
+    fig, ax = plt.subplots(figsize=(1.2 + 0.42 * n, 0.8 + 0.4 * n))
+    im = ax.imshow(c, cmap="RdBu_r", vmin=-1, vmax=1)
+    ax.set_xticks(range(n), names, rotation=90, fontsize=8)
+    ax.set_yticks(range(n), names, fontsize=8)
+    if n <= 12:
+        for i in range(n):
+            for j in range(n):
+                if not np.ma.is_masked(c[i, j]):
+                    ax.text(j, i, f"{c[i, j]:.2f}", ha="center", va="center", fontsize=6)
+    fig.colorbar(im, ax=ax, shrink=0.8, label="correlation")
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
 def plot_validation(e: Experiment, preds: Mapping[str, np.ndarray], path: str | Path) -> Path:
     """Voltage against time (or discharged capacity for CC tests, Fig. 9) for data and each cell, with current."""
     import matplotlib

@@ -37,6 +37,10 @@ def test_fit_and_validate(tmp_path) -> None:
         lo, hi = entry["ci95"]
         assert lo <= P.SPECS[name].truth <= hi and entry["at_bound"] is False
     assert summary["rmse_mV"]["p19"] < 10
+    corr = summary["stages"][0]["correlation"]
+    assert len(corr) == 2 and np.allclose([corr[0][0], corr[1][1]], 1.0) and -1 < corr[0][1] < 1
+    assert (tmp_path / "cell.stage1.error_cdf.png").is_file() and (tmp_path / "cell.stage1.correlation.png").is_file()
+    assert "95 % interval" in r.output and "R_s_n" in r.output
     fitted = battlab.Cell.from_bpx(out)
     assert fitted["R_s_n"] == summary["parameters"]["R_s_n"]["value"]
     r = CliRunner().invoke(main, ["validate", b, "--cell", "nca18650", "--cell", str(out), "-o", str(tmp_path / "v")])

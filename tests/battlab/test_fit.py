@@ -42,6 +42,7 @@ def test_fit_recovers_truth_and_reports(setup) -> None:
     exps = [synthesize(fm, truth, p, p.soc0, seed=7 + k, clean=clean[p.id]) for k, p in enumerate(profs)]
     res = F.fit(cell, exps, NAMES, forward=fm)
     assert res.convergence.converged and res.convergence.cost < res.convergence.cost_start
+    assert res.convergence.predicted_decrease <= F.Options().predicted_tol
     assert res.statistics.valid and 0.7 < res.statistics.s2 < 1.3
     for e in res.statistics.estimates:
         assert e.covers(P.SPECS[e.name].truth), e
@@ -55,10 +56,21 @@ def test_fit_recovers_truth_and_reports(setup) -> None:
 def test_a_fit_that_does_not_converge_says_so(setup) -> None:
     cell, truth, fm, profs, clean = setup
     exps = [synthesize(fm, truth, profs[0], profs[0].soc0, seed=1, clean=clean[profs[0].id])]
-    res = F.fit(cell, exps, NAMES, forward=fm, options=F.Options(max_nfev=2))
+    res = F.fit(cell, exps, NAMES, forward=fm, options=F.Options(max_nfev=2, polish=0))
     assert not res.convergence.converged
     assert "maximum number of iterations" in res.convergence.reason
     assert res.convergence.cost <= res.convergence.cost_start  # best point, never worse than the start
+
+
+def test_gauss_newton_polish_finishes_a_truncated_fit(setup) -> None:
+    cell, truth, fm, profs, clean = setup
+    exps = [synthesize(fm, truth, p, p.soc0, seed=5 + k, clean=clean[p.id]) for k, p in enumerate(profs)]
+    cut = F.fit(cell, exps, NAMES, forward=fm, options=F.Options(max_nfev=3, polish=0))
+    done = F.fit(cell, exps, NAMES, forward=fm, options=F.Options(max_nfev=3))
+    assert not cut.convergence.converged and cut.convergence.predicted_decrease > 1.0
+    assert done.convergence.converged, done.convergence.reason
+    assert done.convergence.cost < cut.convergence.cost - 1.0
+    assert done.convergence.iterations > cut.convergence.iterations
 
 
 def test_groupwise_fit_is_cumulative(setup) -> None:

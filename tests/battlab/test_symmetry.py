@@ -1,0 +1,82 @@
+"""The model's exact scaling symmetry (R_s, D_s, k, R_f) → (λR_s, λ²D_s, λk, R_f/λ) and set-identified intervals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import battlab
+from battlab import parameters as P
+from battlab.identify import fit as F
+from battlab.identify import symmetry
+from battlab.identify.forward import ForwardModel
+from battlab.identify.virtual import synthesize
+from protocols.library import Library
+
+
+def _scaled(cell: battlab.Cell, e: str, lam: float) -> battlab.Cell:
+    return cell.with_values(**{n: float(cell[n]) * lam**a for n, a in symmetry.ORBITS[e].items()})
+
+
+@pytest.mark.parametrize("e", ["n", "p"])
+def test_orbit_leaves_voltage_temperature_unchanged_and_is_a_null_direction(e: str) -> None:
+    cell = battlab.Cell.load("nca18650-true")
+    prof = Library.build()[109]  # 1-s pulses at 12C·s per Ah (strongly nonlinear kinetics)
+    names = list(symmetry.ORBITS[e])
+    base = battlab.simulate(cell, prof, sensitivities=names)
+    assert base.ended_by is None
+    for lam in (0.7, 1.5):
+        r = battlab.simulate(_scaled(cell, e, lam), prof)
+        assert np.max(np.abs(r.voltage - base.voltage)) < 1e-9
+        assert np.max(np.abs(r.T_surface - base.T_surface)) < 1e-9
+    # the orbit's tangent d θ/d log λ = a·θ is a null direction of the exact sensitivities
+    tangent = np.array([a * float(cell[n]) for n, a in symmetry.ORBITS[e].items()])
+    S = base.sensitivities / [P.SPECS[n].dvalue_dnormalised(float(cell[n])) for n in names]  # dV/dθ
+    scale = np.linalg.norm(S * np.abs(tangent), axis=0).max()
+    assert np.linalg.norm(S @ tangent) < 1e-6 * scale
+    for n in names:  # each parameter alone does change the voltage
+        one = np.array([float(cell[m]) * (m == n) for m in names])
+        assert np.linalg.norm(S @ one) > 1e-3 * scale
+
+
+def test_orbit_intervals_are_the_orbit_segment_within_the_bounds() -> None:
+    truth = {n: P.SPECS[n].truth for n in symmetry.ORBITS["p"]}
+    exact = {}
+    for inv, powers in symmetry.INVARIANTS["p"].items():
+        v = float(np.prod([truth[n] ** a for n, a in powers.items()]))
+        exact[inv] = symmetry.Invariant(inv, v, (v, v), "")
+    got = symmetry.orbit_intervals(exact, ["p"])
+    lam_lo = max((P.SPECS[n].lower / truth[n]) ** (1 / a) if a > 0 else (P.SPECS[n].upper / truth[n]) ** (1 / a)
+                 for n, a in symmetry.ORBITS["p"].items())
+    lam_hi = min((P.SPECS[n].upper / truth[n]) ** (1 / a) if a > 0 else (P.SPECS[n].lower / truth[n]) ** (1 / a)
+                 for n, a in symmetry.ORBITS["p"].items())
+    assert lam_lo == pytest.approx(1.0)  # k_p's truth sits on its lower bound: the orbit can only grow
+    for n, a in symmetry.ORBITS["p"].items():
+        ends = sorted([truth[n] * lam_lo**a, truth[n] * lam_hi**a])
+        assert got[n] == pytest.approx(tuple(ends), rel=1e-9)
+
+
+def test_fit_of_a_whole_orbit_reports_invariants_and_set_identified_intervals() -> None:
+    cell = battlab.Cell.load("nca18650")
+    names = tuple(symmetry.ORBITS["n"])
+    truth = cell.with_values(**{n: P.SPECS[n].truth for n in names})
+    fm = ForwardModel(cell)
+    lib = Library.build()
+    exps = [synthesize(fm, truth, lib[i], lib[i].soc0, seed=3 + i) for i in (19, 37)]
+    res = F.fit(cell, exps, names, forward=fm)
+    st = res.statistics
+    assert "symmetry" in st.reason
+    invs = {i.name: i for i in st.invariants}
+    assert set(invs) == {"tau_n", "kappa_n", "rho_n"}
+    assert invs["tau_n"].ci95[1] / invs["tau_n"].ci95[0] < 1.5  # the diffusion time is well determined
+    for inv, powers in symmetry.INVARIANTS["n"].items():
+        true_value = float(np.prod([float(truth[n]) ** a for n, a in powers.items()]))
+        lo, hi = invs[inv].ci95
+        assert lo <= true_value <= hi and lo <= invs[inv].value <= hi
+    for e in st.estimates:
+        assert e.set_identified and not e.identifiable and e.sigma is None
+        lo, hi = e.ci95
+        assert P.SPECS[e.name].lower <= lo <= e.value <= hi <= P.SPECS[e.name].upper
+        assert lo <= P.SPECS[e.name].truth <= hi
+    rep = res.report()
+    assert set(rep["invariants"]) == {"tau_n", "kappa_n", "rho_n"}
