@@ -6,8 +6,9 @@
    positive OCP (the base cell's OCPs are stand-ins for this cell's); RMSE over 5–95 % SOC.
 2. Dynamics from HPPC (every ``--hppc-every``-th pulse segment between logging gaps, above 10 % SOC) and US06 up
    to 90 % of its discharged charge, resampled to 1 s,
-   with a reduced parameter set (:data:`NAMES`: R_s, D_s, R_f, k of each electrode are mutually dependent, so
-   R_s± are held at their nominal values and one kinetic/film parameter per electrode is kept) plus one
+   with a reduced parameter set (:data:`NAMES`: the model is unchanged by (R_s, D_s, k, R_f) → (λR_s, λ²D_s, λk,
+   R_f/λ) in each electrode, :mod:`battlab.identify.symmetry`, so R_s± are held at their nominal values, and
+   near-linear kinetics make k and R_f nearly interchangeable, so one of them per electrode is kept) plus one
    start-SOC nuisance parameter per experiment (±5 % around the SOC from the rest voltage / Ah column).
 3. Prediction of HWFET (start SOC from its first rest voltage, no nuisance) with the equilibrium-only cell and the
    fitted cell, over the whole test and up to 90 % of its discharged charge. Prints the RMSEs [mV].

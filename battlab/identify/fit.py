@@ -94,7 +94,7 @@ class Options:
     gtol: float = 1e-8
     bound_tol: float = 1e-3  # θ̄ this close to 0 or 1 counts as at the bound
     rcond: float = statistics.RCOND
-    #: Gauss–Newton steps after an optimiser stopped by ``max_nfev`` (see :func:`_polish`); 0 turns them off.
+    #: Simulations for Gauss–Newton steps after an optimiser stopped by ``max_nfev`` (see :func:`_polish`); 0: none.
     polish: int = 8
     #: Also converged (when the optimiser stopped on its iteration limit) if the linearised model predicts at
     #: most this cost decrease [½χ² units] inside the bounds: 0.005 means within 0.1 σ of the minimum. (Where
@@ -296,18 +296,16 @@ def _polish(prob: _Problem, x: np.ndarray, opt: Options) -> tuple[np.ndarray, fl
     """Bounded Gauss–Newton steps with backtracking after an optimiser stopped by its iteration limit (the
     trust-region iterations crawl along the long, curved valleys of the nearly dependent parameters).
 
-    Stops when the linearised cost predicts a decrease below ``opt.predicted_tol`` inside the bounds, or when
-    no fraction in :data:`POLISH_STEPS` of the step lowers the cost; returns (x, predicted decrease at x,
-    simulations used).
+    Stops when the linearised cost predicts a decrease below ``opt.predicted_tol`` inside the bounds, when no
+    fraction in :data:`POLISH_STEPS` of the step lowers the cost, or after ``opt.polish`` simulations; returns
+    (x, predicted decrease at x, simulations used).
     """
     r, J, _ = prob.evaluate(x)
     cost = 0.5 * float(r @ r)
     step, dec = _bounded_gauss_newton(x, J, r)
     used = 0
-    for _ in range(opt.polish):
-        if dec <= opt.predicted_tol:
-            break
-        for a in POLISH_STEPS:
+    while dec > opt.predicted_tol and used < opt.polish:
+        for a in POLISH_STEPS[: opt.polish - used]:
             xt = np.clip(x + a * step, 0.0, 1.0)
             rt = prob.evaluate(xt)[0]
             used += 1
