@@ -479,11 +479,19 @@ def _print_design(console, designs, meta, settings, source, n, seconds) -> None:
             "n/a" if conv is None else f"{conv['efficiency']:.3g}×",
         )
     console.print(t)
+    from battlab.identify.symmetry import complete_electrodes
+
     for d in designs:
         for nd in d.unidentifiable:
             console.print(
                 f"[yellow]group {d.index}: not identifiable from any library profile[/yellow]: "
                 f"{nd.describe()}; designed on the identifiable subspace"
+            )
+        if d.unidentifiable and complete_electrodes(d.parameters):
+            console.print(
+                f"group {d.index}: R_s, D_s, k, R_f of electrode(s) {', '.join(complete_electrodes(d.parameters))} "
+                "are moved together by the model's exact scaling symmetry (battlab.identify.symmetry): no experiment "
+                "separates them; fix one of the four to identify the others"
             )
     console.print(
         "gap: relaxed optimum − rounded design (log det for D); integral: relaxed η ∈ {0, 1/M}; check: agreement "
