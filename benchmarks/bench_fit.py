@@ -165,7 +165,7 @@ def _groupwise_seed(job) -> tuple[int, list[tuple[str, bool]], float]:
     stages = [F.Stage(g, tuple(synthesize(fm, truth, p, p.soc0, seed=seed * 10000 + int(p.id), clean=clean[p.id])
                                for p in c)) for g, c in zip(groups, chosen, strict=True)]
     t1 = time.perf_counter()
-    res = F.fit_groupwise(nominal, stages, forward=fm, options=F.Options(max_nfev=max_nfev))
+    res = F.fit_groupwise(nominal, stages, forward=fm, options=F.Options(max_nfev=max_nfev, workers=1))
     return seed, _scored(res[-1].statistics), time.perf_counter() - t1
 
 

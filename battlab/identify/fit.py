@@ -13,8 +13,10 @@ Group-wise and cumulative (DESIGN.md): stage k fits the parameters of groups 1..
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -94,6 +96,9 @@ class Options:
     gtol: float = 1e-8
     bound_tol: float = 1e-3  # θ̄ this close to 0 or 1 counts as at the bound
     rcond: float = statistics.RCOND
+    #: Threads that simulate the experiments of one evaluation in parallel (None: one per core; the compiled
+    #: stepper releases the GIL). Results do not depend on it.
+    workers: int | None = None
     #: Simulations for Gauss–Newton steps after an optimiser stopped by ``max_nfev`` (see :func:`_polish`); 0: none.
     polish: int = 8
     #: Also converged (when the optimiser stopped on its iteration limit) if the linearised model predicts at
@@ -193,7 +198,7 @@ class _Problem:
     """Residuals and Jacobian of eq. 41 for a set of experiments and fitted names, cached per θ̄."""
 
     def __init__(self, fm: ForwardModel, experiments: Sequence[Experiment], names: Sequence[str],
-                 theta_full: np.ndarray, soc_span: float = 0.0) -> None:
+                 theta_full: np.ndarray, soc_span: float = 0.0, pool: ThreadPoolExecutor | None = None) -> None:
         self.fm = fm
         self.exps = list(experiments)
         self.names = tuple(names)
@@ -203,6 +208,7 @@ class _Problem:
         self.n_nuis = len(self.exps) if self.soc_span > 0 else 0
         self._cache: dict[bytes, tuple[np.ndarray, np.ndarray, list[np.ndarray]]] = {}  # the last two points
         self.n_sim = 0
+        self.pool = pool
 
     def full(self, x: np.ndarray) -> np.ndarray:
         th = self.base.copy()
@@ -214,29 +220,33 @@ class _Problem:
         if key in self._cache:
             return self._cache[key]
         x = np.asarray(x, float)
-        p = len(self.names)
-        th = self.full(x[:p])
-        rs, js, preds = [], [], []
-        for i, e in enumerate(self.exps):
-            soc0 = self.soc_of(i, x)
-            pred, S = self._run(th, e, soc0, True)
-            w = 1.0 / np.sqrt(e.variance)
-            m = e.mask
-            if self.n_nuis:  # dV/du by a one-sided difference (the start SOC has no exact sensitivity)
-                h = 1e-3 if x[p + i] < 0.5 else -1e-3
-                p2, _ = self._run(th, e, soc0 + 2 * self.soc_span * h, False)
-                col = np.zeros((e.voltage.size, self.n_nuis))
-                col[:, i] = (p2 - pred) / h
-                S = np.hstack([S, col])
-            rs.append(((pred - e.voltage) * w)[m])
-            js.append((S * w[:, None])[m])
-            preds.append(pred)
+        th = self.full(x[: len(self.names)])
+        idx = range(len(self.exps))
+        parts = list(self.pool.map(lambda i: self._one(i, th, x), idx) if self.pool else map(
+            lambda i: self._one(i, th, x), idx))
+        rs, js, preds = (list(z) for z in zip(*parts, strict=True))
         self.n_sim += 1
         if len(self._cache) >= 2:
             self._cache.pop(next(iter(self._cache)))
         self._cache[key] = (np.concatenate(rs), np.vstack(js), preds)
         return self._cache[key]
 
+
+    def _one(self, i: int, th: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Weighted residuals, Jacobian rows and prediction of experiment i."""
+        e = self.exps[i]
+        p = len(self.names)
+        soc0 = self.soc_of(i, x)
+        pred, S = self._run(th, e, soc0, True)
+        w = 1.0 / np.sqrt(e.variance)
+        m = e.mask
+        if self.n_nuis:  # dV/du by a one-sided difference (the start SOC has no exact sensitivity)
+            h = 1e-3 if x[p + i] < 0.5 else -1e-3
+            p2, _ = self._run(th, e, soc0 + 2 * self.soc_span * h, False)
+            col = np.zeros((e.voltage.size, self.n_nuis))
+            col[:, i] = (p2 - pred) / h
+            S = np.hstack([S, col])
+        return ((pred - e.voltage) * w)[m], (S * w[:, None])[m], pred
 
     def soc_of(self, i: int, x: np.ndarray) -> float:
         e = self.exps[i]
@@ -349,7 +359,20 @@ def fit(
     fm = forward or ForwardModel(cell)
     start = start or cell
     theta_full = np.array([start.normalised(n) for n in parameters.NAMES])
-    prob = _Problem(fm, experiments, names, theta_full, soc_span)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    n_workers = min(opt.workers or cores, len(experiments)) if fm.thread_safe else 1
+    pool = ThreadPoolExecutor(n_workers) if n_workers > 1 else None
+    try:
+        return _fit(cell, experiments, names, opt, fm, start, stage, soc_span, theta_full, pool)
+    finally:
+        if pool is not None:
+            pool.shutdown()
+
+
+def _fit(cell: Cell, experiments: Sequence[Experiment], names: list[str], opt: Options, fm: ForwardModel,
+         start: Cell, stage: int, soc_span: float, theta_full: np.ndarray, pool: ThreadPoolExecutor | None
+         ) -> FitResult:
+    prob = _Problem(fm, experiments, names, theta_full, soc_span, pool)
     x0 = np.r_[np.clip(theta_full[prob.idx], 1e-6, 1 - 1e-6), np.full(prob.n_nuis, 0.5)]
     t0 = time.perf_counter()
     r0, _, preds0 = prob.evaluate(x0)

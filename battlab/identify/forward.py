@@ -58,6 +58,12 @@ class ForwardModel:
                 )
         return np.array([cell.normalised(n) for n in parameters.NAMES])
 
+    @property
+    def thread_safe(self) -> bool:
+        """Whether :meth:`run` may be called from several threads at once (the compiled stepper: it releases
+        the GIL and keeps its work memory per thread; the CasADi fallback is run on one thread)."""
+        return self._native() is not None
+
     def _native(self):  # -> NativeStepper | None
         if self._native_ok is None:
             from battlab.model import solver

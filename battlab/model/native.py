@@ -17,6 +17,7 @@ import os
 import shutil
 import subprocess
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from importlib import resources
@@ -177,14 +178,22 @@ class NativeStepper:
         self.lib.bl_run.restype = _INT
         self._program: LUProgram | None = None
         self._keep: list[np.ndarray] = []
+        self._retired: list[object] = []  # earlier pivot programs: a run on another thread may still use one
         self._problem: _Problem | None = None
+        self._lock = threading.Lock()
 
     # --- LU analysis ---
     def analyse_at(self, y: np.ndarray, xn: np.ndarray, xp: np.ndarray, u: np.ndarray, th: np.ndarray) -> None:
-        """(Re)compute the pivot order at a state (when the current one meets a vanishing pivot)."""
-        vals = np.array(self._f["bl_jac"](y, xn, xp, u, th).nonzeros())
-        self._program = analyse(self.jac_sp, vals)
-        self._problem = self._build_problem()
+        """(Re)compute the pivot order at a state (when the current one meets a vanishing pivot).
+
+        Thread-safe: runs on other threads keep the program they started with (``bl_run`` itself is reentrant).
+        """
+        with self._lock:
+            vals = np.array(self._f["bl_jac"](y, xn, xp, u, th).nonzeros())
+            if self._problem is not None:
+                self._retired.append((self._problem, self._keep))
+            self._program = analyse(self.jac_sp, vals)
+            self._problem = self._build_problem()
 
     def _build_problem(self) -> _Problem:
         lay = self.model.layout
@@ -227,8 +236,9 @@ class NativeStepper:
         code = _INT(0)
         iters = _INT(0)
         pd = lambda x: x.ctypes.data_as(_PD)  # noqa: E731
+        problem = self._problem  # this run's pivot program, whatever another thread analyses meanwhile
         done = self.lib.bl_run(
-            ctypes.byref(self._problem), _INT(len(h)), pd(h), pd(w), pd(current), pd(T_amb),
+            ctypes.byref(problem), _INT(len(h)), pd(h), pd(w), pd(current), pd(T_amb),
             out_idx.ctypes.data_as(_PI), pd(out_I), pd(th), sel.ctypes.data_as(_PI), _INT(ns),
             ctypes.c_double(tol), _INT(maxit), pd(limits), pd(y), pd(xp), pd(S), pd(Sp), pd(Sy), pd(out), pd(outdV),
             pd(outdT2), ctypes.byref(code), ctypes.byref(iters),

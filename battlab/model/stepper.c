@@ -28,11 +28,12 @@ typedef struct {
   int iT2;                      /* index of T2 in y */
 } Problem;
 
-/* CasADi work vectors, sized for the largest function (arg/res may be used beyond the inputs/outputs) */
-static const casadi_real *g_arg[256];
-static casadi_real *g_res[256];
-static casadi_int *g_iw = 0;
-static double *g_w = 0;
+/* CasADi work vectors, sized for the largest function (arg/res may be used beyond the inputs/outputs); one set
+   per thread, so that bl_run is reentrant (the fit runs experiments on several threads) */
+static _Thread_local const casadi_real *g_arg[256];
+static _Thread_local casadi_real *g_res[256];
+static _Thread_local casadi_int *g_iw = 0;
+static _Thread_local double *g_w = 0;
 
 static int ensure_work(void) {
   casadi_int a, r, i, w, ma = 0, mr = 0, mi = 0, mw = 0;

@@ -73,6 +73,15 @@ def test_gauss_newton_polish_finishes_a_truncated_fit(setup) -> None:
     assert done.convergence.iterations > cut.convergence.iterations
 
 
+def test_experiments_on_several_threads_give_the_same_fit(setup) -> None:
+    cell, truth, fm, profs, clean = setup
+    exps = [synthesize(fm, truth, p, p.soc0, seed=21 + k, clean=clean[p.id]) for k, p in enumerate(profs)] * 2
+    one = F.fit(cell, exps, NAMES, forward=fm, options=F.Options(max_nfev=4, workers=1))
+    four = F.fit(cell, exps, NAMES, forward=fm, options=F.Options(max_nfev=4, workers=4))
+    np.testing.assert_array_equal(one.theta_bar, four.theta_bar)
+    assert one.convergence.cost == four.convergence.cost
+
+
 def test_groupwise_fit_is_cumulative(setup) -> None:
     cell, truth, fm, profs, clean = setup
     exps = [synthesize(fm, truth, p, p.soc0, seed=3 + k, clean=clean[p.id]) for k, p in enumerate(profs)]
