@@ -153,6 +153,10 @@ def fit(data: tuple[str, ...], cell_name: str, plan: str | None, params: str, oc
         summary["rmse_mV"].update(last.rmse_mV)
         summary["stages"] = [r.report() for r in results]
         _print_estimates(last)
+        if last.statistics.s2 > 10:
+            click.echo(f"warning: weighted residual variance s² = {last.statistics.s2:.3g} >> 1: the residuals are "
+                       "model error, not measurement noise (or the data come from another cell); the intervals of "
+                       "eq. 44 are too narrow, summary.json also gives them scaled by s² (ci95_scaled)", err=True)
         if not last.statistics.valid:
             click.echo(f"warning: {last.statistics.reason}", err=True)
         extra["confidence_intervals"] = {e.name: list(e.ci95) for e in last.statistics.estimates if e.ci95}

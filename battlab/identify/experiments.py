@@ -9,14 +9,20 @@
   (``Net Capacity / Ah`` if logged, else ∫I dt) divided by the cell's capacity.
 * Ambient: mean chamber temperature (or 25 °C); T0: the surface temperature at the segment's start.
 * Weights: Q from the noise model (eqs. 37–40) plus quantisation (:func:`battlab.identify.fit.variance_of`).
+* Data and cell must match (:func:`check_cell`): voltages more than ``V_TOL`` outside the cell's window, or a rest
+  voltage outside its OCV range, are an error naming the samples; more charge passed than the cell holds is a
+  warning.
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 
 from battlab.cell import Cell
 from battlab.identify.fit import Experiment, variance_of
+from battlab.io.checks import DataWarning, ranges
 from battlab.io.data import NET_CAPACITY, SURFACE, LoggedData
 from battlab.noise import NoiseModel
 from protocols.errors import InputError
@@ -52,6 +58,31 @@ def resample(t: np.ndarray, current: np.ndarray, voltage: np.ndarray, dt: float
     return grid - grid[0], i, np.interp(grid, t, voltage)
 
 
+#: How far [V] logged voltages may lie outside the cell's [V_min, V_max] (sensing error, overshoot at a cut-off).
+V_TOL = 0.15
+
+
+def check_cell(data: LoggedData, cell: Cell) -> None:
+    """Whether ``data`` can come from ``cell``: an :class:`InputError` naming the file, samples and window if the
+    voltage leaves the cell's window by more than :data:`V_TOL` (another chemistry, or another cell's file); a
+    :class:`DataWarning` if the charge passed exceeds the cell's capacity by more than 15 %."""
+    where = data.source or data.name
+    lo, hi = float(cell["V_min"]) - V_TOL, float(cell["V_max"]) + V_TOL
+    bad = (data.voltage < lo) | (data.voltage > hi)
+    if bad.any():
+        raise InputError(
+            f"{where}: voltage {float(np.min(data.voltage)):.3f}–{float(np.max(data.voltage)):.3f} V leaves cell "
+            f"{cell.name!r}'s window {float(cell['V_min']):.2f}–{float(cell['V_max']):.2f} V by more than "
+            f"{V_TOL} V at {ranges(bad, data.t)}: data and cell do not match"
+        )
+    q = np.concatenate([[0.0], np.cumsum(data.current[:-1] * np.diff(data.t))]) / 3600.0
+    swing = float(q.max() - q.min())
+    if swing > 1.15 * cell.capacity():
+        warnings.warn(f"{where}: {swing:.3f} Ah passed in one direction, more than cell {cell.name!r}'s capacity "
+                      f"{cell.capacity():.3f} Ah: check the cell (or its capacity from an OCV test)", DataWarning,
+                      stacklevel=2)
+
+
 def experiments_from_data(
     data: LoggedData,
     cell: Cell,
@@ -64,6 +95,7 @@ def experiments_from_data(
 ) -> list[Experiment]:
     """The fit experiments of one logged test (one per segment between gaps); see the module docstring."""
     where = data.source or data.name
+    check_cell(data, cell)
     segs = segments(data, max_gap)
     if not segs:
         raise InputError(f"{where}: no segment of at least 10 samples between gaps")
@@ -77,7 +109,11 @@ def experiments_from_data(
                 f"{where}: current flows at the first sample ({data.current[k]:.3g} A): give the start SOC "
                 "(soc0 / --soc0), or start the log at rest"
             )
-        start = cell.soc_from_voltage(float(np.clip(data.voltage[k], float(cell.ocv(0.0)), float(cell.ocv(1.0)))))
+        v0, ocv_lo, ocv_hi = float(data.voltage[k]), float(cell.ocv(0.0)), float(cell.ocv(1.0))
+        if not ocv_lo - 0.05 <= v0 <= ocv_hi + 0.05:
+            raise InputError(f"{where}: the rest voltage {v0:.3f} V at sample {k} is outside cell {cell.name!r}'s "
+                             f"OCV range {ocv_lo:.3f}–{ocv_hi:.3f} V: data and cell do not match (or give --soc0)")
+        start = cell.soc_from_voltage(float(np.clip(v0, ocv_lo, ocv_hi)))
     start = float(start)
     ah = data.columns.get(NET_CAPACITY)
     if ah is None:

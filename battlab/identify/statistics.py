@@ -151,9 +151,9 @@ def compute(
     dead = [nm for nm, f in zip(np.array(names)[free], norms == 0, strict=True) if f]
     norms[norms == 0] = 1.0  # a zero column is a null direction of its own
     _, s, Vt = np.linalg.svd(Jf / norms, full_matrices=False)
-    cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+    cond = (float(s[0] / s[-1]) if s[-1] > 0 else float("inf")) if s.size else float("nan")
     fnames = [nm for nm, f in zip(names, free, strict=True) if f]
-    keep = s > rcond * s[0]
+    keep = s > rcond * s[0] if s.size else np.zeros(0, bool)
     null = Vt[~keep]
     unident_f = np.linalg.norm(null, axis=0) > IDENT_TOL if null.size else np.zeros(len(fnames), bool)
     # Cov of the free parameters: (J_fᵀ J_f)⁻¹ = D⁻¹ V S⁻² Vᵀ D⁻¹ with D = diag(norms) (pseudo-inverse if singular)

@@ -85,3 +85,25 @@ def test_fit_consumes_a_design_plan_summary(tmp_path) -> None:
     stages = s["stages"]
     assert [st["parameters"] for st in stages] == [["R_s_n"], ["R_s_n", "R_s_p"]]
     assert stages[0]["experiments"] == ["p19"] and stages[1]["experiments"] == ["p19", "p37"]
+
+
+def test_data_from_another_cell_is_one_line(tmp_path) -> None:
+    t = np.arange(0.0, 600.0)
+    v = 3.3 - 0.3 * t / 600  # an LFP-like plateau ending at 3.0 V, but starting at rest at 3.3 V
+    i = np.where(t > 10, -1.0, 0.0)
+    data = LoggedData("lfp", {TIME: t, VOLTAGE: v - 1.2, CURRENT: i}, {})  # 2.1-1.8 V: far below 2.5 V
+    p = write_bdf_csv(data, tmp_path / "lfp.bdf.csv")
+    r = CliRunner().invoke(main, ["fit", str(p), "--cell", "nca18650", "--params", "R_s_n", "-o",
+                                  str(tmp_path / "c.json")])
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert "leaves cell 'nca18650'" in r.output and "samples 0–599" in r.output and "do not match" in r.output
+    data = LoggedData("hv", {TIME: t, VOLTAGE: v + 1.02, CURRENT: i}, {})  # rests at 4.32 V, above OCV(100 %)
+    p = write_bdf_csv(data, tmp_path / "hv.bdf.csv")
+    r = CliRunner().invoke(main, ["fit", str(p), "--cell", "nca18650", "--params", "R_s_n", "-o",
+                                  str(tmp_path / "c.json")])
+    assert r.exit_code == 2 and "rest voltage 4.320 V at sample 0 is outside" in r.output, r.output
+    data = LoggedData("lfp", {TIME: t, VOLTAGE: v, CURRENT: i}, {})  # fits nothing like the model: says so
+    p = write_bdf_csv(data, tmp_path / "lfp3.bdf.csv")
+    r = CliRunner().invoke(main, ["fit", str(p), "--cell", "nca18650", "--params", "R_s_n", "-o",
+                                  str(tmp_path / "c.json")])
+    assert r.exit_code == 0 and "model error" in r.output, r.output

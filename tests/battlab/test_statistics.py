@@ -102,3 +102,14 @@ def test_no_degrees_of_freedom_is_invalid() -> None:
     J = np.eye(3)
     st = statistics.compute(NAMES, np.full(3, 0.5), J, np.zeros(3))
     assert not st.valid and "degrees of freedom" in st.reason
+
+
+def test_all_parameters_at_bounds_is_handled() -> None:
+    J, r, _ = _linear_problem(3)
+    st = statistics.compute(NAMES, np.array([0.0, 1.0, 0.0]), J, r, ["lower", "upper", "lower"])
+    assert np.isnan(st.condition)
+    for e in st.estimates:
+        assert e.at_bound is not None and e.ci95 is not None
+        spec = parameters.SPECS[e.name]
+        end, bound = (e.ci95[0], spec.lower) if e.at_bound == "lower" else (e.ci95[1], spec.upper)
+        assert end == pytest.approx(bound)
