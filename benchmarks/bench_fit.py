@@ -247,6 +247,11 @@ def _report_coverage(covered: list[tuple[str, bool]], per_run: list[int]) -> Non
     print(f"\ncoverage over {len(per_run)} seeds (interior parameters, truth not on a bound): {hits.mean():.3f} "
           f"({int(hits.sum())}/{hits.size}; target 0.90-0.99); covered per run: {per_run} "
           f"(DESIGN.md: at least 10 of 12 per run; met in {sum(p >= 10 for p in per_run)} of {len(per_run)})")
+    orbit = {n for o in symmetry.ORBITS.values() for n in o}
+    for label, sel in (("covariance intervals", False), ("set-identified (symmetry) intervals", True)):
+        part = [c for n, c in covered if (n in orbit) == sel]
+        if part:
+            print(f"  {label}: {np.mean(part):.3f} ({sum(part)}/{len(part)})")
     names = list(dict.fromkeys(n for n, _ in covered))
     frac = [np.mean([c for n, c in covered if n == m]) for m in names]
     import matplotlib
@@ -257,7 +262,7 @@ def _report_coverage(covered: list[tuple[str, bool]], per_run: list[int]) -> Non
     fig, ax = plt.subplots(figsize=(7, 3.5))
     ax.axhspan(0.90, 0.99, color="C2", alpha=0.15, label="target band (all parameters)")
     ax.axhline(0.95, color="k", lw=0.8, ls="--", label="nominal 95 %")
-    ax.bar(names, frac, color=["C1" if n[:3] in ("R_s", "D_s", "R_f") or n[:2] == "k_" else "C0" for n in names])
+    ax.bar(names, frac, color=["C1" if n in orbit else "C0" for n in names])
     ax.set_ylim(0, 1.05)
     ax.set_ylabel("fraction of seeds covered")
     ax.set_title(f"95 % interval coverage {hits.mean():.1%} over {len(per_run)} seeds (orange: set-identified)",
