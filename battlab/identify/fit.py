@@ -222,15 +222,14 @@ class _Problem:
         x = np.asarray(x, float)
         th = self.full(x[: len(self.names)])
         idx = range(len(self.exps))
-        parts = list(self.pool.map(lambda i: self._one(i, th, x), idx) if self.pool else map(
-            lambda i: self._one(i, th, x), idx))
+        parts = list(self.pool.map(self._one, idx, [th] * len(idx), [x] * len(idx))) if self.pool else [
+            self._one(i, th, x) for i in idx]
         rs, js, preds = (list(z) for z in zip(*parts, strict=True))
         self.n_sim += 1
         if len(self._cache) >= 2:
             self._cache.pop(next(iter(self._cache)))
         self._cache[key] = (np.concatenate(rs), np.vstack(js), preds)
         return self._cache[key]
-
 
     def _one(self, i: int, th: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Weighted residuals, Jacobian rows and prediction of experiment i."""
