@@ -181,13 +181,13 @@ def fit(data: tuple[str, ...], cell_name: str, plan: str | None, params: str, oc
 
 def _stage_figures(r: Any, prefix: Path) -> None:
     """Fig. 7 for one stage: CDF of |voltage error| before and after, and the correlation matrix."""
-    from battlab.identify.fit import _correlation
+    from battlab.identify.statistics import correlation
     from battlab.identify.validation import plot_cdf, plot_correlation
 
     plot_cdf({"before": r.errors_before_mV, "after": r.errors_after_mV}, f"{prefix}.error_cdf.png",
              f"stage {r.stage}: |voltage error| before and after")
     st = r.statistics
-    corr = st.correlation if st.correlation is not None else _correlation(st.covariance_identifiable)
+    corr = st.correlation if st.correlation is not None else correlation(st.covariance_identifiable)
     if corr is not None:
         plot_correlation(st.names, corr, f"{prefix}.correlation.png", f"stage {r.stage}: parameter correlation")
 

@@ -164,7 +164,7 @@ class FitResult:
             "not_identifiable": list(st.unidentifiable),
             "null_space": [dict(d) for d in st.null_space],
             "correlation": _nan_to_none(st.correlation if st.correlation is not None
-                                        else _correlation(st.covariance_identifiable)),
+                                        else statistics.correlation(st.covariance_identifiable)),
             "rmse_mV": self.rmse_mV,
             "rmse_before_mV": self.rmse_before_mV,
             "estimates": {
@@ -177,15 +177,6 @@ class FitResult:
             "invariants": {i.name: {"value": i.value, "ci95": list(i.ci95), "definition": i.definition}
                            for i in st.invariants},
         }
-
-
-def _correlation(cov: np.ndarray | None) -> np.ndarray | None:
-    """Correlation matrix of a covariance (NaN rows stay NaN)."""
-    if cov is None:
-        return None
-    d = np.sqrt(np.abs(np.diag(cov)))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return cov / np.outer(d, d)
 
 
 def _nan_to_none(a: np.ndarray | None) -> list[list[float | None]] | None:

@@ -104,6 +104,15 @@ class Statistics:
         ]
 
 
+def correlation(cov: np.ndarray | None) -> np.ndarray | None:
+    """Correlation matrix of a covariance (NaN rows stay NaN)."""
+    if cov is None:
+        return None
+    d = np.sqrt(np.abs(np.diag(cov)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return cov / np.outer(d, d)
+
+
 def _interval(name: str, th: float, half: float, side: str | None) -> tuple[float, float]:
     spec = parameters.spec(name)
     lo, hi = th - half, th + half
@@ -144,36 +153,25 @@ def compute(
 
     if dof <= 0:
         return invalid(f"{n} observations for {p} parameters: no degrees of freedom")
-    # every parameter counts as free for the covariance, those at a bound included: the others' intervals are then
-    # marginal over the bound parameters' uncertainty (conditional ones, with a bound parameter fixed at the bound,
-    # are too narrow when its true value lies inside: measured 86 % coverage instead of 95 % on the virtual truth)
-    free = np.ones(p, bool)
-    Jf = J[:, free]
-    norms = np.linalg.norm(Jf, axis=0)
+    # the covariance is that of all parameters, those at a bound included: the others' intervals are marginal over
+    # the bound parameters' uncertainty (conditional ones, with a bound parameter fixed at the bound, are too narrow
+    # when its true value lies inside: measured 86 % coverage instead of 95 % on the virtual truth)
     if not np.all(np.isfinite(J)):
         return invalid("the Jacobian has non-finite entries")
-    dead = [nm for nm, f in zip(np.array(names)[free], norms == 0, strict=True) if f]
+    norms = np.linalg.norm(J, axis=0)
+    dead = [nm for nm, z in zip(names, norms == 0, strict=True) if z]
     norms[norms == 0] = 1.0  # a zero column is a null direction of its own
-    _, s, Vt = np.linalg.svd(Jf / norms, full_matrices=False)
+    _, s, Vt = np.linalg.svd(J / norms, full_matrices=False)
     cond = (float(s[0] / s[-1]) if s[-1] > 0 else float("inf")) if s.size else float("nan")
-    fnames = [nm for nm, f in zip(names, free, strict=True) if f]
     keep = s > rcond * s[0] if s.size else np.zeros(0, bool)
     null = Vt[~keep]
-    unident_f = np.linalg.norm(null, axis=0) > IDENT_TOL if null.size else np.zeros(len(fnames), bool)
-    # Cov of the free parameters: (J_fᵀ J_f)⁻¹ = D⁻¹ V S⁻² Vᵀ D⁻¹ with D = diag(norms) (pseudo-inverse if singular)
-    cov_f = (Vt[keep].T / s[keep] ** 2) @ Vt[keep] / np.outer(norms, norms)
-    idx = np.flatnonzero(free)
-    ok = np.zeros(p, bool)
-    ok[idx[~unident_f]] = True
-    cov = np.full((p, p), np.nan)
-    cov[np.ix_(idx, idx)] = cov_f
-    sig = np.sqrt(np.where(ok, np.diag(cov), np.nan))
-    d = np.sqrt(np.abs(np.diag(cov_f)))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov_f / np.outer(d, d)
-    corr_full = np.full((p, p), np.nan)
-    corr_full[np.ix_(idx, idx)] = corr
-    for a in (cov, corr_full):  # rows/cols of non-identifiable parameters carry no information
+    ok = ~(np.linalg.norm(null, axis=0) > IDENT_TOL) if null.size else np.ones(p, bool)
+    # (JᵀJ)⁻¹ = D⁻¹ V S⁻² Vᵀ D⁻¹ with D = diag(norms) (the pseudo-inverse if singular)
+    cov_all = (Vt[keep].T / s[keep] ** 2) @ Vt[keep] / np.outer(norms, norms)
+    sig = np.sqrt(np.where(ok, np.diag(cov_all), np.nan))
+    corr = correlation(cov_all)
+    cov = cov_all.copy()
+    for a in (cov, corr):  # rows/cols of non-identifiable parameters carry no information
         a[~ok, :] = np.nan
         a[:, ~ok] = np.nan
     est = []
@@ -190,7 +188,7 @@ def compute(
     invs: dict[str, symmetry.Invariant] = {}
     electrodes = symmetry.complete_electrodes(names)
     if electrodes:  # invariants from the pseudo-inverse (estimable functions)
-        invs = symmetry.invariants(names, th, cov_f, tval)
+        invs = symmetry.invariants(names, th, cov_all, tval)
         orbit = symmetry.orbit_intervals(invs, electrodes)
         for k, nm in enumerate(names):
             if nm in orbit:
@@ -200,7 +198,7 @@ def compute(
     directions: tuple[dict[str, float], ...] = ()
     unident = tuple(nm for k, nm in enumerate(names) if not ok[k])
     if null.size:
-        directions = tuple({nm: float(c) for nm, c in zip(fnames, v, strict=True) if abs(c) > IDENT_TOL}
+        directions = tuple({nm: float(c) for nm, c in zip(names, v, strict=True) if abs(c) > IDENT_TOL}
                            for v in null)
         combos = "; ".join(", ".join(f"{nm} ({c:+.2f})" for nm, c in sorted(dd.items(), key=lambda x: -abs(x[1]))
                                      if abs(c) > 0.01) for dd in directions)
@@ -223,6 +221,6 @@ def compute(
     singular = bool(null.size)
     return Statistics(
         names, th, n, dof, tval, None if singular else cov, None if singular else cov * s2,
-        None if singular else corr_full, s2, cond, tuple(est), not singular, "; ".join(notes) or None,
+        None if singular else corr, s2, cond, tuple(est), not singular, "; ".join(notes) or None,
         unident, directions, cov, tuple(invs.values()),
     )
