@@ -382,8 +382,9 @@ def _fit(cell: Cell, experiments: Sequence[Experiment], names: list[str], opt: O
     if cost > cost0:  # never return a worse point than the start
         x, (r, J, preds), cost = x0, prob.evaluate(x0), cost0
     # polish only a fit stopped by its iteration limit (after a tolerance stop the valleys' curvature defeats it)
-    x, dec, n_polish = _polish(prob, x, replace(opt, polish=opt.polish if status == 0 else 0)) \
-        if err is None else (x, float("nan"), 0)
+    dec, n_polish = float("nan"), 0
+    if err is None:
+        x, dec, n_polish = _polish(prob, x, replace(opt, polish=opt.polish if status == 0 else 0))
     r, J, preds = prob.evaluate(x)
     cost = 0.5 * float(r @ r)
     nfev += n_polish
