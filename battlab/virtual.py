@@ -2,6 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+import json
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+
 from battlab.cell import Cell
 from battlab.model.live import LiveCell
 from drivers.virtual.physics import CellLimits
@@ -46,3 +53,24 @@ class DFNPhysics:
 def make_cell_physics(cell: str | Cell) -> DFNPhysics:
     """The DFN-backed physics of a built-in cell name, a BPX/TOML cell file, or a :class:`Cell`."""
     return DFNPhysics(cell if isinstance(cell, Cell) else Cell.load(cell))
+
+
+@contextlib.contextmanager
+def served(*options: str) -> Iterator[dict[str, str]]:
+    """``battlab virtual-tester serve --json OPTIONS…`` in another process, on free ports unless ``options`` name
+    them; yields its URLs (``{"cycler", "chamber", "espec", "physics", …}``) and stops it with Ctrl-C (SIGINT)
+    on exit, killing it if it does not stop within 10 s."""
+    ports = [a for a in ("--cycler-port", "--chamber-port", "--espec-port") if a not in options]
+    cmd = [sys.executable, "-c", "from battlab.cli import main; main()", "virtual-tester", "serve", "--json",
+           *(x for a in ports for x in (a, "0")), *options]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        yield json.loads(proc.stdout.readline())
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)

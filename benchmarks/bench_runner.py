@@ -20,9 +20,6 @@ import argparse
 import contextlib
 import json
 import os
-import signal
-import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -31,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from battlab import virtual
 from battlab.io.logs import read_log
 from battlab.lab.catalog import Catalog
 from battlab.lab.documents import CatalogSink, LogSink
@@ -61,40 +59,10 @@ def one_hour_plan(profile_id: int, duration_s: float | None = None) -> Plan:
 @contextlib.contextmanager
 def served(speed: float, physics: str = "dfn") -> Iterator[dict[str, str]]:
     """``battlab virtual-tester serve`` with the DFN cell (or the stand-in) in another process."""
-    cmd = [
-        sys.executable,
-        "-c",
-        "from battlab.cli import main; main()",
-        "virtual-tester",
-        "serve",
-        "--json",
-        "--speed",
-        str(speed),
-        "--cycler-port",
-        "0",
-        "--chamber-port",
-        "0",
-        "--espec-port",
-        "0",
-        "--soc0",
-        "0.4",
-        "--duration",
-        "900",
-        "--physics",
-        "auto" if physics == "dfn" else "standin",
-    ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout is not None
-        urls = json.loads(proc.stdout.readline())
+    with virtual.served("--speed", str(speed), "--soc0", "0.4", "--duration", "900", "--physics",
+                        "auto" if physics == "dfn" else "standin") as urls:
         assert ("make_cell_physics" in urls["physics"]) == (physics == "dfn"), urls["physics"]
         yield urls
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
 
 
 def bench_profile(plan: Plan, speed: float, where: str, workdir: Path, physics: str = "dfn") -> dict[str, Any]:

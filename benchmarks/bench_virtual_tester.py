@@ -18,14 +18,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import signal
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 
 import numpy as np
 
+from battlab import virtual
 from drivers.scpi.cycler import ScpiCycler
 from drivers.virtual.lab import VirtualLab, VirtualLabConfig
 
@@ -87,36 +85,8 @@ def serve(speed: float, where: str) -> Iterator[str]:
         ) as lab:
             yield lab.cycler_url
         return
-    cmd = [
-        sys.executable,
-        "-c",
-        "from battlab.cli import main; main()",
-        "virtual-tester",
-        "serve",
-        "--json",
-        "--speed",
-        str(speed),
-        "--physics",
-        "standin",
-        "--cycler-port",
-        "0",
-        "--chamber-port",
-        "0",
-        "--espec-port",
-        "0",
-        "--duration",
-        "600",
-    ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout is not None
-        yield json.loads(proc.stdout.readline())["cycler"]
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+    with virtual.served("--speed", str(speed), "--physics", "standin", "--duration", "600") as urls:
+        yield urls["cycler"]
 
 
 def bench_virtual_hour(

@@ -8,7 +8,6 @@ and its watchdog keep running while the runner is dead, as a real bench's would.
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
@@ -21,6 +20,7 @@ import numpy as np
 import pytest
 from lab_helpers import wait_until
 
+from battlab import virtual
 from battlab.io.data import load_data
 from battlab.io.logs import read_log
 from battlab.lab.catalog import Catalog
@@ -60,35 +60,8 @@ BATTLAB = [sys.executable, "-c", "from battlab.cli import main; main()"]
 @pytest.fixture
 def tester() -> Iterator[dict[str, str]]:
     """``battlab virtual-tester serve`` in its own process; its URLs."""
-    cmd = [
-        *BATTLAB,
-        "virtual-tester",
-        "serve",
-        "--cycler-port",
-        "0",
-        "--chamber-port",
-        "0",
-        "--espec-port",
-        "0",
-        "--speed",
-        str(SPEED),
-        "--physics",
-        "standin",
-        "--json",
-        "--duration",
-        "300",
-    ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout is not None
-        yield json.loads(proc.stdout.readline())
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
+    with virtual.served("--speed", str(SPEED), "--physics", "standin", "--duration", "300") as urls:
+        yield urls
 
 
 def _rows(path: Path) -> int:
