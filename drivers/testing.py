@@ -18,7 +18,8 @@ that were never exercised, so a recording cannot silently go stale.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from drivers.errors import CommunicationError, InstrumentFault
@@ -123,3 +124,13 @@ class ReplayRegisters(_Replay):
             raise InstrumentFault(self.name, f"Modbus exception {reply[3:].strip()}")
         if reply != "OK":
             raise AssertionError(f"{self.name}: write reply must be OK or EXC n, got {reply!r}")
+
+
+def wait_until(predicate: Callable[[], bool], timeout_s: float, poll_s: float = 0.005) -> bool:
+    """Poll ``predicate`` for at most ``timeout_s`` real seconds (every wait in a test is bounded)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(poll_s)
+    return predicate()

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
 
+from drivers.testing import wait_until  # noqa: F401 (re-exported for the tests)
 from drivers.virtual.lab import VirtualLab, VirtualLabConfig
 
 
@@ -24,13 +24,3 @@ def make_lab() -> Iterator[Callable[..., VirtualLab]]:
     yield factory
     for lab in labs:
         lab.stop()
-
-
-def wait_until(predicate: Callable[[], bool], timeout_s: float, poll_s: float = 0.005) -> bool:
-    """Poll ``predicate`` for at most ``timeout_s`` real seconds (every test loop is bounded)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(poll_s)
-    return predicate()
