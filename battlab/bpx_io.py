@@ -97,8 +97,7 @@ def read_bpx(path: str | Path) -> Cell:
     for section in ("cell", "electrolyte", "negative_electrode", "positive_electrode", "separator"):
         if getattr(par, section, None) is None:
             raise InputError(
-                f"{path}: BPX model {model.header.model!r} lacks the "
-                f"{section.replace('_', ' ')} section a DFN needs"
+                f"{path}: BPX model {model.header.model!r} lacks the {section.replace('_', ' ')} section a DFN needs"
             )
     for label, el in (
         ("Negative electrode", par.negative_electrode),
@@ -238,9 +237,7 @@ def read_bpx(path: str | Path) -> Cell:
     put(
         "h2a",
         float(h) * a_ext,
-        "h x external surface area"
-        if h
-        else "no heat transfer coefficient: adiabatic, as PyBaMM's BPX reader",
+        "h x external surface area" if h else "no heat transfer coefficient: adiabatic, as PyBaMM's BPX reader",
     )
     put("R_c", 0.0, "BPX has no contact resistance")
     put("T_max", T_MAX_DEFAULT, "BPX has no maximum temperature: default 333.15 K")
@@ -270,9 +267,7 @@ def _load_json(path: Path) -> dict[str, Any]:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
-        raise InputError(
-            f"{path}: not valid JSON ({exc.msg} at line {exc.lineno} column {exc.colno})"
-        ) from None
+        raise InputError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno} column {exc.colno})") from None
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a UTF-8 text file (expected BPX JSON)") from None
     if not isinstance(data, dict):
@@ -282,9 +277,7 @@ def _load_json(path: Path) -> dict[str, Any]:
 
 _SECTIONS = {"Cell", "Electrolyte", "Negative electrode", "Positive electrode", "Separator", "User-defined"}
 _HEADER = {"Model", "BPX", "Title", "Description", "References"}
-_TYPE_TAG = re.compile(
-    r"^(float|int|str|bool|none|list\[.*\]|dict\[.*\]|InterpolatedTable|function-.*|json-.*)$"
-)
+_TYPE_TAG = re.compile(r"^(float|int|str|bool|none|list\[.*\]|dict\[.*\]|InterpolatedTable|function-.*|json-.*)$")
 
 
 def _validate(raw: dict[str, Any], where: str) -> Any:
@@ -320,9 +313,7 @@ def _describe(exc: Any) -> str:
         if msg.startswith("Invalid Function"):
             where = re.search(r"\(at char (\d+)\)", msg)
             at = f" at character {int(where.group(1)) + 1}" if where else ""
-            msg = (
-                f"not a valid BPX function of x{at} (numbers, x, + - * / ** and calls such as exp(), tanh())"
-            )
+            msg = f"not a valid BPX function of x{at} (numbers, x, + - * / ** and calls such as exp(), tanh())"
     elif first["type"] == "missing":
         msg = "required field is missing"
     elif any(t.startswith(("function", "InterpolatedTable")) for t in tags):
@@ -425,9 +416,7 @@ def _mean(a: float | Function, b: float | Function) -> Function:
         return Expr(f"0.5*(({a.text}) + ({b.text}))")
     xs = sorted({*(_grid(a)), *(_grid(b))})
     x = np.asarray(xs, float)
-    return Table(
-        tuple(x), tuple(0.5 * (np.asarray(evaluate(a, x), float) + np.asarray(evaluate(b, x), float)))
-    )
+    return Table(tuple(x), tuple(0.5 * (np.asarray(evaluate(a, x), float) + np.asarray(evaluate(b, x), float))))
 
 
 def _grid(f: float | Function) -> Iterable[float]:
@@ -515,9 +504,7 @@ def write_bpx(cell: Cell, path: str | Path, **extra: Any) -> Path:
                 "Cation transference number": float(v["t_plus"]),
                 "Diffusivity [m2.s-1]": _bpx_function(_product(float(v["D_e_scale"]), v["D_e"]), _CE_GRID),
                 "Diffusivity activation energy [J.mol-1]": float(v["E_D_e"]),
-                "Conductivity [S.m-1]": _bpx_function(
-                    _product(float(v["kappa_scale"]), v["kappa"]), _CE_GRID
-                ),
+                "Conductivity [S.m-1]": _bpx_function(_product(float(v["kappa_scale"]), v["kappa"]), _CE_GRID),
                 "Conductivity activation energy [J.mol-1]": float(v["E_kappa"]),
             },
             "Negative electrode": electrode("n"),

@@ -168,8 +168,11 @@ class Cell:
                 return cls._from_toml_dict(tomllib.load(fh), text)
         path = Path(text)
         if not path.exists():
-            names = sorted(p.name.removesuffix(".toml") for p in resources.files("battlab.cells").iterdir()
-                           if p.name.endswith(".toml"))
+            names = sorted(
+                p.name.removesuffix(".toml")
+                for p in resources.files("battlab.cells").iterdir()
+                if p.name.endswith(".toml")
+            )
             raise InputError(f"cell {text!r}: not a built-in cell ({', '.join([*names, 'nca18650-true'])}) nor a file")
         if path.suffix == ".json":
             return cls.from_bpx(path)

@@ -116,8 +116,12 @@ def simulate(
         sensitivities=traj.dV,
         sensitivities_T=traj.dT2,
         ended_by=traj.ended_by,
-        stats={"build_seconds": build, "solve_seconds": traj.seconds, "steps": traj.n_steps,
-               "newton_iterations": traj.newton_iterations},
+        stats={
+            "build_seconds": build,
+            "solve_seconds": traj.seconds,
+            "steps": traj.n_steps,
+            "newton_iterations": traj.newton_iterations,
+        },
     )
 
 

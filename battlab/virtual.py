@@ -61,8 +61,16 @@ def served(*options: str) -> Iterator[dict[str, str]]:
     them; yields its URLs (``{"cycler", "chamber", "espec", "physics", …}``) and stops it with Ctrl-C (SIGINT)
     on exit, killing it if it does not stop within 10 s."""
     ports = [a for a in ("--cycler-port", "--chamber-port", "--espec-port") if a not in options]
-    cmd = [sys.executable, "-c", "from battlab.cli import main; main()", "virtual-tester", "serve", "--json",
-           *(x for a in ports for x in (a, "0")), *options]
+    cmd = [
+        sys.executable,
+        "-c",
+        "from battlab.cli import main; main()",
+        "virtual-tester",
+        "serve",
+        "--json",
+        *(x for a in ports for x in (a, "0")),
+        *options,
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None

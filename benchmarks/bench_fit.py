@@ -61,11 +61,17 @@ def main() -> None:
     ap.add_argument("--per-group", type=int, default=3)
     ap.add_argument("--candidates", type=int, default=40)
     ap.add_argument("--max-nfev", type=int, default=40)
-    ap.add_argument("--coverage-only", action="store_true",
-                    help="skip the group-wise and conventional fits: final-stage fits from the truth, all seeds")
-    ap.add_argument("--coverage-full", action="store_true",
-                    help="coverage seeds rerun the whole group-wise fit (default: only the final stage, from seed "
-                         "0's estimate; the intervals are the final stage's either way)")
+    ap.add_argument(
+        "--coverage-only",
+        action="store_true",
+        help="skip the group-wise and conventional fits: final-stage fits from the truth, all seeds",
+    )
+    ap.add_argument(
+        "--coverage-full",
+        action="store_true",
+        help="coverage seeds rerun the whole group-wise fit (default: only the final stage, from seed "
+        "0's estimate; the intervals are the final stage's either way)",
+    )
     ap.add_argument("--quick", action="store_true", help="2 seeds, 2 profiles per group, 20 candidates")
     ap.add_argument("--plan", default=None, help="the design's summary.json (groups and selected profiles)")
     ap.add_argument("--workers", type=int, default=2, help="processes for --coverage-full")
@@ -83,8 +89,10 @@ def main() -> None:
         groups, chosen = F.TABLE9_GROUPS, _stand_in(fm, nominal, truth, lib, a.per_group, a.candidates)
         source = "stand-in D-optimal"
     used = {p.id for c in chosen for p in c}
-    print(f"selection ({source}) {time.perf_counter() - t0:.1f} s: "
-          + "; ".join(f"group {k + 1}: {[p.id for p in c]}" for k, c in enumerate(chosen)))
+    print(
+        f"selection ({source}) {time.perf_counter() - t0:.1f} s: "
+        + "; ".join(f"group {k + 1}: {[p.id for p in c]}" for k, c in enumerate(chosen))
+    )
     clean = {p.id: noise_free(fm, truth, p, p.soc0) for c in chosen for p in c}
     val_profiles = _validation_profiles(fm, truth, lib, used)
     names_all = tuple(n for g in groups for n in g)
@@ -93,13 +101,27 @@ def main() -> None:
         return
 
     def run(seed: int, verbose: bool) -> tuple[list[F.FitResult], F.FitResult | None]:
-        stages = [F.Stage(g, tuple(synthesize(fm, truth, p, p.soc0, seed=seed * 10000 + int(p.id), clean=clean[p.id])
-                                   for p in c)) for g, c in zip(groups, chosen, strict=True)]
+        stages = [
+            F.Stage(
+                g, tuple(synthesize(fm, truth, p, p.soc0, seed=seed * 10000 + int(p.id), clean=clean[p.id]) for p in c)
+            )
+            for g, c in zip(groups, chosen, strict=True)
+        ]
         t1 = time.perf_counter()
-        res = F.fit_groupwise(nominal, stages, forward=fm, options=F.Options(max_nfev=a.max_nfev),
-                              progress=(lambda k, r: print(f"  stage {k}: {r.convergence.iterations} evaluations, "
-                                                           f"{r.convergence.seconds:.1f} s, {r.convergence.reason}"))
-                              if verbose else None)
+        res = F.fit_groupwise(
+            nominal,
+            stages,
+            forward=fm,
+            options=F.Options(max_nfev=a.max_nfev),
+            progress=(
+                lambda k, r: print(
+                    f"  stage {k}: {r.convergence.iterations} evaluations, "
+                    f"{r.convergence.seconds:.1f} s, {r.convergence.reason}"
+                )
+            )
+            if verbose
+            else None,
+        )
         if verbose:
             print(f"full group-wise fit: {time.perf_counter() - t1:.1f} s (target <= 600 s)")
         conv = None
@@ -113,8 +135,10 @@ def main() -> None:
 
     res, conv = run(0, True)
     last = res[-1]
-    print("\nrecovery (seed 0): name, truth, estimate, 95 % interval, covered (excluded: truth on a bound; "
-          "'orbit' = set-identified interval of the scaling symmetry)")
+    print(
+        "\nrecovery (seed 0): name, truth, estimate, 95 % interval, covered (excluded: truth on a bound; "
+        "'orbit' = set-identified interval of the scaling symmetry)"
+    )
     for e in last.statistics.estimates:
         spec = P.SPECS[e.name]
         cov = _status(e)
@@ -123,8 +147,10 @@ def main() -> None:
         print(f"  {e.name:12s} {spec.truth:11.4g} {e.value:11.4g} {ci:26s} {cov} {flag} {e.at_bound or ''}")
     for i in last.statistics.invariants:
         tv = float(np.prod([P.SPECS[n].truth ** a for n, a in symmetry.INVARIANTS[i.name[-1]][i.name].items()]))
-        print(f"  {i.name:12s} {tv:11.4g} {i.value:11.4g} [{i.ci95[0]:.4g}, {i.ci95[1]:.4g}] "
-              f"{i.ci95[0] <= tv <= i.ci95[1]} invariant {i.definition}")
+        print(
+            f"  {i.name:12s} {tv:11.4g} {i.value:11.4g} [{i.ci95[0]:.4g}, {i.ci95[1]:.4g}] "
+            f"{i.ci95[0] <= tv <= i.ci95[1]} invariant {i.definition}"
+        )
     if last.statistics.reason:
         print("  statistics:", last.statistics.reason)
     vexps = [synthesize(fm, truth, p, s, seed=99, name=str(p.id)) for p, s in val_profiles]
@@ -135,8 +161,10 @@ def main() -> None:
     beats = all(table["OED"][n] < table["conventional"][n] for n in table["OED"])
     for e in vexps:  # Fig. 9
         plot_validation(e, {k: preds[k][e.name] for k in cells}, f"validation_{e.name.replace(' ', '_')}.png")
-    print(f"OED beats conventional on every profile: {beats}; OED RMSE <= 2x noise: "
-          f"{all(table['OED'][n] <= 2 * noise[n] for n in noise)}")
+    print(
+        f"OED beats conventional on every profile: {beats}; OED RMSE <= 2x noise: "
+        f"{all(table['OED'][n] <= 2 * noise[n] for n in noise)}"
+    )
     last.cell.to_bpx("oed.json")
     conv.cell.to_bpx("conventional.json")
     print("saved oed.json, conventional.json and validation_*.png")
@@ -150,8 +178,11 @@ def main() -> None:
             for seed, c, secs in pool.map(_groupwise_seed, jobs):
                 covered += c
                 per_run.append(sum(v for _, v in c))
-                print(f"  seed {seed}: {per_run[-1]}/{len(c)} covered (missed {[n for n, v in c if not v]}), "
-                      f"group-wise fit {secs:.0f} s", flush=True)
+                print(
+                    f"  seed {seed}: {per_run[-1]}/{len(c)} covered (missed {[n for n, v in c if not v]}), "
+                    f"group-wise fit {secs:.0f} s",
+                    flush=True,
+                )
         _report_coverage(covered, per_run)
     else:
         _coverage(a, fm, nominal, truth, chosen, clean, last.names, last.cell, covered)
@@ -162,8 +193,10 @@ def _groupwise_seed(job) -> tuple[int, list[tuple[str, bool]], float]:
     seed, groups, chosen, clean, max_nfev = job
     nominal, truth = battlab.Cell.load("nca18650"), battlab.Cell.load("nca18650-true")
     fm = ForwardModel(nominal)
-    stages = [F.Stage(g, tuple(synthesize(fm, truth, p, p.soc0, seed=seed * 10000 + int(p.id), clean=clean[p.id])
-                               for p in c)) for g, c in zip(groups, chosen, strict=True)]
+    stages = [
+        F.Stage(g, tuple(synthesize(fm, truth, p, p.soc0, seed=seed * 10000 + int(p.id), clean=clean[p.id]) for p in c))
+        for g, c in zip(groups, chosen, strict=True)
+    ]
     t1 = time.perf_counter()
     res = F.fit_groupwise(nominal, stages, forward=fm, options=F.Options(max_nfev=max_nfev, workers=1))
     return seed, _scored(res[-1].statistics), time.perf_counter() - t1
@@ -227,15 +260,21 @@ def _coverage(a, fm, nominal, truth, chosen, clean, names, start, covered) -> No
     first = 0 if a.coverage_only else 1
     for seed in range(first, a.seeds):
         t1 = time.perf_counter()
-        exps = [synthesize(fm, truth, p, p.soc0, seed=seed * 10000 + int(p.id), clean=clean[p.id])
-                for c in chosen for p in c]
+        exps = [
+            synthesize(fm, truth, p, p.soc0, seed=seed * 10000 + int(p.id), clean=clean[p.id])
+            for c in chosen
+            for p in c
+        ]
         r = F.fit(nominal, exps, names, forward=fm, start=start, options=F.Options(max_nfev=a.max_nfev))
         c = _scored(r.statistics)
         missed = [n for n, v in c if not v]
         covered += c
         per_run.append(sum(v for _, v in c))
-        print(f"  seed {seed}: {per_run[-1]}/{len(c)} covered (missed {missed}), {r.convergence.iterations} "
-              f"evaluations, {r.convergence.reason[:40]}, {time.perf_counter() - t1:.0f} s", flush=True)
+        print(
+            f"  seed {seed}: {per_run[-1]}/{len(c)} covered (missed {missed}), {r.convergence.iterations} "
+            f"evaluations, {r.convergence.reason[:40]}, {time.perf_counter() - t1:.0f} s",
+            flush=True,
+        )
     _report_coverage(covered, per_run)
 
 
@@ -244,9 +283,11 @@ def _report_coverage(covered: list[tuple[str, bool]], per_run: list[int]) -> Non
     if not covered:
         return
     hits = np.array([c for _, c in covered], float)
-    print(f"\ncoverage over {len(per_run)} seeds (interior parameters, truth not on a bound): {hits.mean():.3f} "
-          f"({int(hits.sum())}/{hits.size}; target 0.90-0.99); covered per run: {per_run} "
-          f"(DESIGN.md: at least 10 of 12 per run; met in {sum(p >= 10 for p in per_run)} of {len(per_run)})")
+    print(
+        f"\ncoverage over {len(per_run)} seeds (interior parameters, truth not on a bound): {hits.mean():.3f} "
+        f"({int(hits.sum())}/{hits.size}; target 0.90-0.99); covered per run: {per_run} "
+        f"(DESIGN.md: at least 10 of 12 per run; met in {sum(p >= 10 for p in per_run)} of {len(per_run)})"
+    )
     orbit = {n for o in symmetry.ORBITS.values() for n in o}
     for label, sel in (("covariance intervals", False), ("set-identified (symmetry) intervals", True)):
         part = [c for n, c in covered if (n in orbit) == sel]
@@ -265,8 +306,9 @@ def _report_coverage(covered: list[tuple[str, bool]], per_run: list[int]) -> Non
     ax.bar(names, frac, color=["C1" if n in orbit else "C0" for n in names])
     ax.set_ylim(0, 1.05)
     ax.set_ylabel("fraction of seeds covered")
-    ax.set_title(f"95 % interval coverage {hits.mean():.1%} over {len(per_run)} seeds (orange: set-identified)",
-                 fontsize=9)
+    ax.set_title(
+        f"95 % interval coverage {hits.mean():.1%} over {len(per_run)} seeds (orange: set-identified)", fontsize=9
+    )
     ax.tick_params(axis="x", rotation=60, labelsize=8)
     ax.legend(fontsize=7, loc="lower left")
     fig.tight_layout()

@@ -104,9 +104,18 @@ def fmt(v: float | None, unit: str = "") -> str:
 def print_table(title: str, rows: list[Row]) -> None:
     print(f"\n{title}")
     head = ("metric", "battlab", "PyBaMM", "ratio", "unit", "target", "met?")
-    body = [(r.metric, fmt(r.battlab, r.unit), fmt(r.pybamm, r.unit),
-             "–" if r.ratio is None else f"{r.ratio:.2f}×", r.unit, r.target,
-             "–" if r.met is None else ("yes" if r.met else "NO")) for r in rows]
+    body = [
+        (
+            r.metric,
+            fmt(r.battlab, r.unit),
+            fmt(r.pybamm, r.unit),
+            "–" if r.ratio is None else f"{r.ratio:.2f}×",
+            r.unit,
+            r.target,
+            "–" if r.met is None else ("yes" if r.met else "NO"),
+        )
+        for r in rows
+    ]
     widths = [max(len(x[i]) for x in [head, *body]) for i in range(len(head))]
     line = "  ".join("{:<" + str(w) + "}" for w in widths)
     print(line.format(*head))
@@ -196,8 +205,9 @@ def right_limits(t: np.ndarray) -> np.ndarray:
 TIGHT = ((1e-8, 1e-10), (1e-8, 1e-8), (1e-7, 1e-9))
 
 
-def pybamm_bpx(soc0: float, current: Any, var_pts: dict[str, int] | None,
-               tol: tuple[float, float] | None = None) -> Any:
+def pybamm_bpx(
+    soc0: float, current: Any, var_pts: dict[str, int] | None, tol: tuple[float, float] | None = None
+) -> Any:
     """PyBaMM's DFN on the BPX cell from ``soc0``; ``tol`` = (rtol, atol) for IDAKLU, None for its defaults."""
     import pybamm
 
@@ -270,14 +280,18 @@ def accuracy(args: argparse.Namespace, rows: list[Row]) -> Any:
     }
     log(f"\n== 1. accuracy: BPX NMC cell ({q:g} Ah), isothermal; PyBaMM DFN 60 points/domain, rtol 1e-8 ==")
     if args.check_zoh:
-        log(f"   PyBaMM zero-order hold (Heaviside sum) vs step-by-step solve, 120 s of UDDS: "
-            f"max |dV| = {1e6 * check_zoh():.2f} uV")
+        log(
+            f"   PyBaMM zero-order hold (Heaviside sum) vs step-by-step solve, 120 s of UDDS: "
+            f"max |dV| = {1e6 * check_zoh():.2f} uV"
+        )
     refs = {}
     for name, (prof, soc0) in cases.items():
         t_ref, v_ref, wall, tol = solve_reference(prof.t, prof.current, soc0)
         refs[name] = (t_ref, v_ref)
-        log(f"   PyBaMM reference {name} ({tol}): {wall:.1f} s, {t_ref.size} samples, ends at {t_ref[-1]:.0f} s, "
-            f"V {v_ref.min():.3f}–{v_ref.max():.3f} V")
+        log(
+            f"   PyBaMM reference {name} ({tol}): {wall:.1f} s, {t_ref.size} samples, ends at {t_ref[-1]:.0f} s, "
+            f"V {v_ref.min():.3f}–{v_ref.max():.3f} V"
+        )
         if name.startswith("UDDS") and t_ref[-1] < prof.t[-1]:
             log("   WARNING: the drive cycle hit PyBaMM's cut-off")
 
@@ -294,31 +308,47 @@ def accuracy(args: argparse.Namespace, rows: list[Row]) -> Any:
         errs = {}
         for name in cases:
             res = run(mesh, name)
-            errs[name] = (rmse_mV(res.t, res.voltage, *refs[name]), rmse_mV(res.t, res.voltage, conv[name].t,
-                                                                              conv[name].voltage), res)
+            errs[name] = (
+                rmse_mV(res.t, res.voltage, *refs[name]),
+                rmse_mV(res.t, res.voltage, conv[name].t, conv[name].voltage),
+                res,
+            )
         label = "default" if mesh == Mesh() else ("converged" if mesh == Mesh.converged() else "candidate")
-        log(f"   battlab {label} {mesh}: " + "; ".join(
-            f"{n}: {e[0]:.3f} mV vs PyBaMM, {e[1]:.3f} mV vs battlab converged, ended_by {e[2].ended_by}"
-            for n, e in errs.items()))
+        log(
+            f"   battlab {label} {mesh}: "
+            + "; ".join(
+                f"{n}: {e[0]:.3f} mV vs PyBaMM, {e[1]:.3f} mV vs battlab converged, ended_by {e[2].ended_by}"
+                for n, e in errs.items()
+            )
+        )
         ok = all(e[0] <= 1.0 for e in errs.values())
         if strict is None and ok and all(e[1] <= 0.5 for e in errs.values()):
             strict = mesh
         if mesh == Mesh():
             for name, e in errs.items():
-                rows.append(Row(f"RMSE {name}: default mesh vs PyBaMM converged", e[0], None, "mV", "≤ 1",
-                                e[0] <= 1.0))
-                rows.append(Row(f"RMSE {name}: default vs converged mesh (battlab)", e[1], None, "mV", "≤ 0.5",
-                                e[1] <= 0.5))
+                rows.append(Row(f"RMSE {name}: default mesh vs PyBaMM converged", e[0], None, "mV", "≤ 1", e[0] <= 1.0))
+                rows.append(
+                    Row(f"RMSE {name}: default vs converged mesh (battlab)", e[1], None, "mV", "≤ 0.5", e[1] <= 0.5)
+                )
         if mesh == Mesh.converged():
             for name, e in errs.items():
-                rows.append(Row(f"RMSE {name}: converged mesh vs PyBaMM converged", e[0], None, "mV", "≤ 1",
-                                e[0] <= 1.0))
+                rows.append(
+                    Row(f"RMSE {name}: converged mesh vs PyBaMM converged", e[0], None, "mV", "≤ 1", e[0] <= 1.0)
+                )
         if ok and accurate is None:
             accurate = mesh
             if mesh != Mesh():
                 for name, e in errs.items():
-                    rows.append(Row(f"RMSE {name}: accurate mesh {mesh_label(mesh)} vs PyBaMM", e[0], None, "mV",
-                                    "≤ 1", e[0] <= 1.0))
+                    rows.append(
+                        Row(
+                            f"RMSE {name}: accurate mesh {mesh_label(mesh)} vs PyBaMM",
+                            e[0],
+                            None,
+                            "mV",
+                            "≤ 1",
+                            e[0] <= 1.0,
+                        )
+                    )
     log(f"   accurate mesh (first within 1 mV of PyBaMM on both): {accurate}")
     log(f"   first mesh also within 0.5 mV of battlab's converged mesh on both: {strict}")
     return accurate or Mesh.converged()
@@ -347,8 +377,9 @@ def speed_discharge(args: argparse.Namespace, rows: list[Row], accurate: Any) ->
         q = float(cell["Q_nom"])
         prof = Profile.constant(-q, 4200.0, dt)
         first = battlab.simulate(cell, prof, soc0=1.0, isothermal=cell is bpx, mesh=mesh)
-        best, res = best_of(lambda: battlab.simulate(cell, prof, soc0=1.0, isothermal=cell is bpx, mesh=mesh),
-                            args.repeat)
+        best, res = best_of(
+            lambda: battlab.simulate(cell, prof, soc0=1.0, isothermal=cell is bpx, mesh=mesh), args.repeat
+        )
         assert first.ended_by == res.ended_by
         # the build (code generation + compile) of this cell and mesh, whenever it happened in this process
         return best, float(first.stats.get("build_seconds", float("nan"))), res
@@ -372,17 +403,39 @@ def speed_discharge(args: argparse.Namespace, rows: list[Row], accurate: Any) ->
     for dt in (1.0, 10.0):
         b, b_build, res = battlab_case(nca, Mesh(), dt)
         p, p_build, sol = pybamm_case(chen, 4200.0, dt, initial_soc=1.0)
-        log(f"   dt_out {dt:g} s: battlab nca18650 default mesh {1e3 * b:.1f} ms (build {b_build:.2f} s, "
+        log(
+            f"   dt_out {dt:g} s: battlab nca18650 default mesh {1e3 * b:.1f} ms (build {b_build:.2f} s, "
             f"{res.stats.get('steps')} steps, ended {res.ended_by} at {res.t[-1]:.0f} s) | PyBaMM Chen2020 default "
-            f"{1e3 * p:.1f} ms (build {p_build:.2f} s, ended {sol.termination} at {sol.t[-1]:.0f} s)")
-        rows.append(Row(f"1C discharge, {dt:g} s output: nca18650 vs Chen2020", 1e3 * b, 1e3 * p, "ms", "≤ 2×",
-                        b <= 2.0 * p, f"build {b_build:.2f} s vs {p_build:.2f} s"))
+            f"{1e3 * p:.1f} ms (build {p_build:.2f} s, ended {sol.termination} at {sol.t[-1]:.0f} s)"
+        )
+        rows.append(
+            Row(
+                f"1C discharge, {dt:g} s output: nca18650 vs Chen2020",
+                1e3 * b,
+                1e3 * p,
+                "ms",
+                "≤ 2×",
+                b <= 2.0 * p,
+                f"build {b_build:.2f} s vs {p_build:.2f} s",
+            )
+        )
         b, b_build, res = battlab_case(bpx, accurate, dt)
         p, p_build, sol = pybamm_case(bpx_sim, 4200.0, dt)
-        log(f"   dt_out {dt:g} s: battlab BPX {accurate} {1e3 * b:.1f} ms (build {b_build:.2f} s) | PyBaMM BPX "
-            f"default mesh {1e3 * p:.1f} ms (build {p_build:.2f} s, ended at {sol.t[-1]:.0f} s)")
-        rows.append(Row(f"1C discharge, {dt:g} s output: BPX cell, battlab {mesh_label(accurate)}", 1e3 * b, 1e3 * p,
-                        "ms", "≤ 2×", b <= 2.0 * p, f"build {b_build:.2f} s vs {p_build:.2f} s"))
+        log(
+            f"   dt_out {dt:g} s: battlab BPX {accurate} {1e3 * b:.1f} ms (build {b_build:.2f} s) | PyBaMM BPX "
+            f"default mesh {1e3 * p:.1f} ms (build {p_build:.2f} s, ended at {sol.t[-1]:.0f} s)"
+        )
+        rows.append(
+            Row(
+                f"1C discharge, {dt:g} s output: BPX cell, battlab {mesh_label(accurate)}",
+                1e3 * b,
+                1e3 * p,
+                "ms",
+                "≤ 2×",
+                b <= 2.0 * p,
+                f"build {b_build:.2f} s vs {p_build:.2f} s",
+            )
+        )
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -393,24 +446,37 @@ def pybamm_sens_worker(duration: float, n_solves: int, fallback: float = 600.0) 
     profile fails, times its first ``fallback`` seconds instead (reported as such, never as the hour)."""
     import pybamm
 
-    inputs = {"D_s_n": 3.3e-14, "D_s_p": 4e-15, "sigma_n": 215.0, "sigma_p": 0.18, "D_e_scale": 1.0,
-              "kappa_scale": 1.0, "t_plus": 0.2594, "k_n": 1.0, "k_p": 1.0}
+    inputs = {
+        "D_s_n": 3.3e-14,
+        "D_s_p": 4e-15,
+        "sigma_n": 215.0,
+        "sigma_p": 0.18,
+        "D_e_scale": 1.0,
+        "kappa_scale": 1.0,
+        "t_plus": 0.2594,
+        "k_n": 1.0,
+        "k_p": 1.0,
+    }
 
     def scaled(fn: Callable[..., Any], name: str) -> Callable[..., Any]:
         return lambda *a: pybamm.InputParameter(name) * fn(*a)
 
     def make(t_end: float) -> tuple[Any, np.ndarray]:
         pv = pybamm.ParameterValues("Chen2020")
-        for key, name in (("Negative particle diffusivity [m2.s-1]", "D_s_n"),
-                          ("Positive particle diffusivity [m2.s-1]", "D_s_p"),
-                          ("Negative electrode conductivity [S.m-1]", "sigma_n"),
-                          ("Positive electrode conductivity [S.m-1]", "sigma_p"),
-                          ("Cation transference number", "t_plus")):
+        for key, name in (
+            ("Negative particle diffusivity [m2.s-1]", "D_s_n"),
+            ("Positive particle diffusivity [m2.s-1]", "D_s_p"),
+            ("Negative electrode conductivity [S.m-1]", "sigma_n"),
+            ("Positive electrode conductivity [S.m-1]", "sigma_p"),
+            ("Cation transference number", "t_plus"),
+        ):
             pv[key] = pybamm.InputParameter(name)
-        for key, name in (("Electrolyte diffusivity [m2.s-1]", "D_e_scale"),
-                          ("Electrolyte conductivity [S.m-1]", "kappa_scale"),
-                          ("Negative electrode exchange-current density [A.m-2]", "k_n"),
-                          ("Positive electrode exchange-current density [A.m-2]", "k_p")):
+        for key, name in (
+            ("Electrolyte diffusivity [m2.s-1]", "D_e_scale"),
+            ("Electrolyte conductivity [S.m-1]", "kappa_scale"),
+            ("Negative electrode exchange-current density [A.m-2]", "k_n"),
+            ("Positive electrode exchange-current density [A.m-2]", "k_p"),
+        ):
             pv[key] = scaled(pv[key], name)
         t = np.arange(0.0, t_end + 1.0)
         amp = float(pv["Nominal cell capacity [A.h]"])
@@ -418,8 +484,7 @@ def pybamm_sens_worker(duration: float, n_solves: int, fallback: float = 600.0) 
         return pybamm.Simulation(pybamm.lithium_ion.DFN(), parameter_values=pv, solver=pybamm.IDAKLUSolver()), t
 
     def solve(sim: Any, t: np.ndarray) -> Any:
-        return sim.solve([0.0, float(t[-1])], t_interp=t, inputs=inputs, calculate_sensitivities=True,
-                         initial_soc=0.5)
+        return sim.solve([0.0, float(t[-1])], t_interp=t, inputs=inputs, calculate_sensitivities=True, initial_soc=0.5)
 
     out: dict[str, Any] = {"walls": []}
     sim, t = make(duration)
@@ -433,8 +498,12 @@ def pybamm_sens_worker(duration: float, n_solves: int, fallback: float = 600.0) 
             break
         out["walls"].append(time.perf_counter() - t1)
         sens = sol["Voltage [V]"].sensitivities
-        out.update(termination=sol.termination, t_end=float(sol.t[-1]), n_sens=len([k for k in sens if k != "all"]),
-                   maxrss_mb=maxrss_mb())
+        out.update(
+            termination=sol.termination,
+            t_end=float(sol.t[-1]),
+            n_sens=len([k for k in sens if k != "all"]),
+            maxrss_mb=maxrss_mb(),
+        )
         print(json.dumps(out), flush=True)
     if "error" in out and fallback:
         sim, t = make(fallback)
@@ -489,11 +558,14 @@ def speed_sensitivities(args: argparse.Namespace, rows: list[Row]) -> None:
     first = battlab.simulate(nca, prof, soc0=0.5, sensitivities=names)
     best, res = best_of(lambda: battlab.simulate(nca, prof, soc0=0.5, sensitivities=names), args.repeat)
     assert res.ended_by is None and first.sensitivities.shape == (3601, 18)
-    log(f"   battlab nca18650, 18 sensitivities: {best:.3f} s (build {first.stats.get('build_seconds', 0):.2f} s; "
-        f"{res.stats.get('steps')} steps)")
+    log(
+        f"   battlab nca18650, 18 sensitivities: {best:.3f} s (build {first.stats.get('build_seconds', 0):.2f} s; "
+        f"{res.stats.get('steps')} steps)"
+    )
     nine = [parameters.NAMES.index(n) for n in SENS9]
-    best9, _ = best_of(lambda: battlab.simulate(nca, prof, soc0=0.5, sensitivities=[names[i] for i in nine]),
-                       args.repeat)
+    best9, _ = best_of(
+        lambda: battlab.simulate(nca, prof, soc0=0.5, sensitivities=[names[i] for i in nine]), args.repeat
+    )
     log(f"   battlab nca18650, the same 9 as PyBaMM: {best9:.3f} s")
     p = None
     note = f"PyBaMM: Chen2020, 9 sensitivities ({', '.join(SENS9)}), linear-interpolant current"
@@ -507,21 +579,34 @@ def speed_sensitivities(args: argparse.Namespace, rows: list[Row]) -> None:
         elif out.get("walls"):
             walls = out["walls"]
             p = min(walls)
-            log(f"   PyBaMM Chen2020, {out['n_sens']} sensitivities: first call {walls[0]:.2f} s (set-up + solve), "
+            log(
+                f"   PyBaMM Chen2020, {out['n_sens']} sensitivities: first call {walls[0]:.2f} s (set-up + solve), "
                 + (f"second {walls[1]:.2f} s" if len(walls) > 1 else "no second call within the time limit")
-                + f"; {out['termination']} at {out['t_end']:.0f} s, peak RSS {out['maxrss_mb']:.0f} MB")
+                + f"; {out['termination']} at {out['t_end']:.0f} s, peak RSS {out['maxrss_mb']:.0f} MB"
+            )
             if len(walls) == 1:
                 note += "; PyBaMM time includes its set-up (one call within the limit)"
         else:
             where = f" at t = {out['ida_failure_t']:.1f} s" if "ida_failure_t" in out else ""
             fb = out.get("fallback")
-            extra = (f"; its first {fb['duration']:.0f} s take {fb['wall']:.1f} s (set-up included)" if fb else "")
+            extra = f"; its first {fb['duration']:.0f} s take {fb['wall']:.1f} s (set-up included)" if fb else ""
             note += f"; PyBaMM FAILED{where} ({out['error'][:60]}){extra}"
-            log(f"   PyBaMM 9 sensitivities FAILED{where} after {out.get('failed_after', 0):.1f} s: "
-                f"{out['error']}{extra}")
+            log(
+                f"   PyBaMM 9 sensitivities FAILED{where} after {out.get('failed_after', 0):.1f} s: "
+                f"{out['error']}{extra}"
+            )
         if out is not None and "maxrss_mb" in out:
-            rows.append(Row("peak memory, sinusoid with sensitivities (PyBaMM: 9)", None, out["maxrss_mb"],
-                            "MB", "", None, "PyBaMM's subprocess"))
+            rows.append(
+                Row(
+                    "peak memory, sinusoid with sensitivities (PyBaMM: 9)",
+                    None,
+                    out["maxrss_mb"],
+                    "MB",
+                    "",
+                    None,
+                    "PyBaMM's subprocess",
+                )
+            )
     rows.append(Row("1 h sinusoid, 18 sensitivities (PyBaMM: 9)", best, p, "s", "≤ 1 s", best <= 1.0, note))
     rows.append(Row("1 h sinusoid, the same 9 sensitivities", best9, p, "s", "", None))
 
@@ -534,8 +619,9 @@ def robustness(args: argparse.Namespace, rows: list[Row]) -> None:
     import battlab
     from battlab import Cell, parameters
 
-    widths = (1.0, 10.0, 100.0, 1000.0) if args.quick else (1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0,
-                                                             1000.0)
+    widths = (
+        (1.0, 10.0, 100.0, 1000.0) if args.quick else (1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0)
+    )
     rates = (0.5, 1.0, 2.0, 3.0, 5.0)
     nca = Cell.load("nca18650")
     cases = pulse_trains(2.7, widths, rates)
@@ -548,8 +634,10 @@ def robustness(args: argparse.Namespace, rows: list[Row]) -> None:
         elif res.ended_by is not None:
             limits += 1
     wall = time.perf_counter() - t0
-    log(f"   battlab (18 sensitivities): {len(fails)} failed, {limits} ended at a limit, "
-        f"{len(cases) - len(fails) - limits} ran to the end; {wall:.1f} s in all")
+    log(
+        f"   battlab (18 sensitivities): {len(fails)} failed, {limits} ended at a limit, "
+        f"{len(cases) - len(fails) - limits} ran to the end; {wall:.1f} s in all"
+    )
     for f in fails:
         log(f"     FAILED {f}")
     # PyBaMM: Chen2020 at the same C-rates, no sensitivities, within a time budget
@@ -559,8 +647,13 @@ def robustness(args: argparse.Namespace, rows: list[Row]) -> None:
         if time.perf_counter() - t0 > args.pybamm_pulse_budget:
             break
         pv = pybamm.ParameterValues("Chen2020")
-        pv.update({"Current function [A]": pybamm_zoh(prof.t, prof.current), "Lower voltage cut-off [V]": WIDE[0],
-                   "Upper voltage cut-off [V]": WIDE[1]})
+        pv.update(
+            {
+                "Current function [A]": pybamm_zoh(prof.t, prof.current),
+                "Lower voltage cut-off [V]": WIDE[0],
+                "Upper voltage cut-off [V]": WIDE[1],
+            }
+        )
         sim = pybamm.Simulation(pybamm.lithium_ion.DFN(), parameter_values=pv, solver=pybamm.IDAKLUSolver())
         try:
             with warnings.catch_warnings():
@@ -571,12 +664,23 @@ def robustness(args: argparse.Namespace, rows: list[Row]) -> None:
             p_fail += 1
             p_fail_list.append(f"{label}: {type(exc).__name__}: {str(exc).splitlines()[0][:100]}")
         p_done += 1
-    log(f"   PyBaMM Chen2020 (no sensitivities): {p_done} of {len(cases)} run in "
-        f"{time.perf_counter() - t0:.0f} s: {p_fail} failed, {p_limit} ended at a limit")
+    log(
+        f"   PyBaMM Chen2020 (no sensitivities): {p_done} of {len(cases)} run in "
+        f"{time.perf_counter() - t0:.0f} s: {p_fail} failed, {p_limit} ended at a limit"
+    )
     for f in p_fail_list[:10]:
         log(f"     FAILED {f}")
-    rows.append(Row("pulse trains 1–1000 s, ≤ 5C: solver failures", len(fails), p_fail, "count", "0",
-                    not fails, f"battlab {len(cases)} trains, 18 sens.; PyBaMM {p_done} trains, no sens."))
+    rows.append(
+        Row(
+            "pulse trains 1–1000 s, ≤ 5C: solver failures",
+            len(fails),
+            p_fail,
+            "count",
+            "0",
+            not fails,
+            f"battlab {len(cases)} trains, 18 sens.; PyBaMM {p_done} trains, no sens.",
+        )
+    )
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -589,8 +693,12 @@ def battlab_memory_worker(sensitivities: bool) -> dict[str, Any]:
     nca = Cell.load("nca18650")
     names = list(parameters.NAMES) if sensitivities else []
     res = battlab.simulate(nca, sine_profile(2.7), soc0=0.5, sensitivities=names)
-    return {"import_mb": base, "maxrss_mb": maxrss_mb(), "ended_by": res.ended_by,
-            "shape": list(res.sensitivities.shape) if res.sensitivities is not None else None}
+    return {
+        "import_mb": base,
+        "maxrss_mb": maxrss_mb(),
+        "ended_by": res.ended_by,
+        "shape": list(res.sensitivities.shape) if res.sensitivities is not None else None,
+    }
 
 
 def memory(args: argparse.Namespace, rows: list[Row]) -> None:
@@ -600,21 +708,40 @@ def memory(args: argparse.Namespace, rows: list[Row]) -> None:
         log(f"   failed: {out}")
         rows.append(Row("peak memory, 1 h with 18 sensitivities", None, None, "MB", "≤ 500", False, "run failed"))
         return
-    log(f"   battlab: peak RSS {out['maxrss_mb']:.0f} MB (after imports {out['import_mb']:.0f} MB), "
-        f"sensitivities {out['shape']}")
-    rows.append(Row("peak memory, 1 h with 18 sensitivities", out["maxrss_mb"], None, "MB", "≤ 500",
-                    out["maxrss_mb"] <= 500.0, f"after imports alone {out['import_mb']:.0f} MB"))
+    log(
+        f"   battlab: peak RSS {out['maxrss_mb']:.0f} MB (after imports {out['import_mb']:.0f} MB), "
+        f"sensitivities {out['shape']}"
+    )
+    rows.append(
+        Row(
+            "peak memory, 1 h with 18 sensitivities",
+            out["maxrss_mb"],
+            None,
+            "MB",
+            "≤ 500",
+            out["maxrss_mb"] <= 500.0,
+            f"after imports alone {out['import_mb']:.0f} MB",
+        )
+    )
 
 
 # ---------------------------------------------------------------------------------------------------------------
 def parse(argv: list[str] | None = None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="1200 s drive cycle, 2 candidate meshes, fewer pulse "
-                    "trains, 3 repeats, PyBaMM sensitivities capped at 60 s")
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help="1200 s drive cycle, 2 candidate meshes, fewer pulse "
+        "trains, 3 repeats, PyBaMM sensitivities capped at 60 s",
+    )
     ap.add_argument("--repeat", type=int, default=None, help="repeats for best-of timings (default 7, quick 3)")
-    ap.add_argument("--sections", default="accuracy,speed,sens,pulses,memory",
-                    help="comma-separated subset of accuracy,speed,sens,pulses,memory")
+    ap.add_argument(
+        "--sections",
+        default="accuracy,speed,sens,pulses,memory",
+        help="comma-separated subset of accuracy,speed,sens,pulses,memory",
+    )
     ap.add_argument("--pybamm-timeout", type=float, default=None, help="s for PyBaMM's sensitivity run (120)")
     ap.add_argument("--pybamm-pulse-budget", type=float, default=None, help="s for PyBaMM's pulse trains (300)")
     ap.add_argument("--skip-pybamm-sens", action="store_true", help="do not run PyBaMM with sensitivities")
@@ -644,10 +771,12 @@ def main(argv: list[str] | None = None) -> None:
 
     import battlab
 
-    log(f"bench_model: battlab {battlab.__version__}, PyBaMM {pybamm.__version__}, CasADi {casadi.__version__}, "
+    log(
+        f"bench_model: battlab {battlab.__version__}, PyBaMM {pybamm.__version__}, CasADi {casadi.__version__}, "
         f"numpy {np.__version__}, Python {platform.python_version()}, {os.cpu_count()} CPUs, "
         f"{platform.machine()}; stepper cache {os.environ.get('BATTLAB_CACHE', '~/.cache/battlab')}"
-        f"{' (warm)' if args.warm_cache else ' (cold)'}")
+        f"{' (warm)' if args.warm_cache else ' (cold)'}"
+    )
     sections = set(args.sections.split(","))
     rows: list[Row] = []
     t_start = time.perf_counter()

@@ -67,9 +67,11 @@ def main() -> None:
     d = _load("C20_OCV")
     curve = ocv_curve(d.t, d.current, d.voltage, source=d.source)
     eq = fit_equilibrium(curve, battlab.Cell.load("nca18650"), ocp_terms=6, rated_capacity=2.9)
-    print(f"equilibrium (C/20, {curve.method}): capacity {eq.capacity:.3f} Ah, RMSE {eq.rmse_mV:.2f} mV overall, "
-          f"{eq.rmse_5_95_mV:.2f} mV over 5-95 % SOC (max {eq.max_error_5_95_mV:.1f} mV), "
-          f"{time.perf_counter() - t0:.1f} s")
+    print(
+        f"equilibrium (C/20, {curve.method}): capacity {eq.capacity:.3f} Ah, RMSE {eq.rmse_mV:.2f} mV overall, "
+        f"{eq.rmse_5_95_mV:.2f} mV over 5-95 % SOC (max {eq.max_error_5_95_mV:.1f} mV), "
+        f"{time.perf_counter() - t0:.1f} s"
+    )
     cell = eq.cell
     fm = ForwardModel(cell, v_margin=0.15)
     hppc = experiments_from_data(_load("HPPC"), cell, dt=1.0)
@@ -77,23 +79,28 @@ def main() -> None:
     hwfet = experiments_from_data(_load("HWFET"), cell, dt=1.0)
     # fit on HPPC segments above 10 % SOC and US06 up to 90 % of its discharged charge
     train = [e for e in hppc[:: a.hppc_every] if e.soc0 >= 0.1] + [_until_90(e, _ah(e)) for e in us06]
-    print(f"fit data: {len(train) - 1} of {len(hppc)} HPPC segments + US06 to 90 % of its charge "
-          f"({sum(int(e.mask.sum()) for e in train)} samples at 1 s); parameters {', '.join(NAMES)} "
-          f"+ {len(train)} start-SOC nuisances")
+    print(
+        f"fit data: {len(train) - 1} of {len(hppc)} HPPC segments + US06 to 90 % of its charge "
+        f"({sum(int(e.mask.sum()) for e in train)} samples at 1 s); parameters {', '.join(NAMES)} "
+        f"+ {len(train)} start-SOC nuisances"
+    )
     res = F.fit(cell, train, NAMES, forward=fm, options=F.Options(max_nfev=a.max_nfev), soc_span=0.05)
     c = res.convergence
-    print(f"fit: {c.iterations} evaluations, {c.seconds:.0f} s, cost {c.cost_start:.4g} -> {c.cost:.4g}, "
-          f"{c.reason}")
+    print(f"fit: {c.iterations} evaluations, {c.seconds:.0f} s, cost {c.cost_start:.4g} -> {c.cost:.4g}, {c.reason}")
     print("  name          start        estimate   95 % (Cov·s², the residuals are model error, not noise)")
     for e in res.statistics.estimates:
         ci = f"[{e.ci95_scaled[0]:.4g}, {e.ci95_scaled[1]:.4g}]" if e.ci95_scaled else "none"
         print(f"  {e.name:12s} {float(cell.get(e.name)):11.4g} -> {e.value:11.4g}  {ci} {e.at_bound or ''}")
     st = res.statistics
-    print(f"  s2 = {st.s2:.3g} (weighted residual variance; >> 1 means model error dominates the noise)"
-          + (f"; {st.reason}" if st.reason else ""))
+    print(
+        f"  s2 = {st.s2:.3g} (weighted residual variance; >> 1 means model error dominates the noise)"
+        + (f"; {st.reason}" if st.reason else "")
+    )
     socs = res.extra.get("soc0", {})
-    print("  start SOC (data -> fitted): " + ", ".join(
-        f"{e.name} {e.soc0:.3f}->{socs.get(e.name, e.soc0):.3f}" for e in train))
+    print(
+        "  start SOC (data -> fitted): "
+        + ", ".join(f"{e.name} {e.soc0:.3f}->{socs.get(e.name, e.soc0):.3f}" for e in train)
+    )
     print("\nRMSE [mV]            equilibrium only    fitted")
     for e in train:
         print(f"  {e.name:18s} {res.rmse_before_mV[e.name]:14.2f} {res.rmse_mV[e.name]:12.2f}   (fit data)")
@@ -106,13 +113,17 @@ def main() -> None:
             print(f"  {e.name:18s} {rm[0]:14.2f} {rm[1]:12.2f}   (HWFET prediction, {label})")
         o = fm.run(fm.theta_of(res.cell), e.profile, e.soc0, ambient=e.ambient, T0=e.T0)
         k = o.voltage.size
-        print(f"  {e.name:18s} {'':14s} {1e3 * np.sqrt(np.mean((o.voltage - e.voltage[:k]) ** 2)):12.2f}   (HWFET "
-              f"prediction until the fitted model stops: {o.ended_by or 'end'} at {e.profile.t[k - 1]:.0f} s of "
-              f"{e.profile.t[-1]:.0f} s)")
+        print(
+            f"  {e.name:18s} {'':14s} {1e3 * np.sqrt(np.mean((o.voltage - e.voltage[:k]) ** 2)):12.2f}   (HWFET "
+            f"prediction until the fitted model stops: {o.ended_by or 'end'} at {e.profile.t[k - 1]:.0f} s of "
+            f"{e.profile.t[-1]:.0f} s)"
+        )
         err = 1e3 * (after - e.voltage)
         q = len(err) // 10
-        print("  HWFET error by tenth of the test [mV RMSE]: "
-              + ", ".join(f"{np.sqrt(np.mean(err[k * q:(k + 1) * q] ** 2)):.1f}" for k in range(10)))
+        print(
+            "  HWFET error by tenth of the test [mV RMSE]: "
+            + ", ".join(f"{np.sqrt(np.mean(err[k * q : (k + 1) * q] ** 2)):.1f}" for k in range(10))
+        )
         print(f"  HWFET start SOC {e.soc0:.3f}; it delivers {_ah(e):.3f} Ah to 2.5 V vs {eq.capacity:.3f} Ah at C/20")
     print(f"total {time.perf_counter() - t0:.0f} s")
 

@@ -59,8 +59,16 @@ def one_hour_plan(profile_id: int, duration_s: float | None = None) -> Plan:
 @contextlib.contextmanager
 def served(speed: float, physics: str = "dfn") -> Iterator[dict[str, str]]:
     """``battlab virtual-tester serve`` with the DFN cell (or the stand-in) in another process."""
-    with virtual.served("--speed", str(speed), "--soc0", "0.4", "--duration", "900", "--physics",
-                        "auto" if physics == "dfn" else "standin") as urls:
+    with virtual.served(
+        "--speed",
+        str(speed),
+        "--soc0",
+        "0.4",
+        "--duration",
+        "900",
+        "--physics",
+        "auto" if physics == "dfn" else "standin",
+    ) as urls:
         assert ("make_cell_physics" in urls["physics"]) == (physics == "dfn"), urls["physics"]
         yield urls
 

@@ -145,9 +145,7 @@ def concatenate(
         label = f"to SOC {target:g} for profile {p.id}"
         how = SocMethod.RESET if soc is None and method is not SocMethod.REST else method
         if how is SocMethod.RESET:
-            steps.append(
-                CCCV(i_adj, v_hi, (current_below(cutoff), after(cv_max_s + 4 * 3600)), f"full: {label}")
-            )
+            steps.append(CCCV(i_adj, v_hi, (current_below(cutoff), after(cv_max_s + 4 * 3600)), f"full: {label}"))
             was = 0.0 if soc is None else soc
             adjust_s += (1.0 - was) * capacity_ah * 3600.0 / i_adj
             cv_s += cv_max_s

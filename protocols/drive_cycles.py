@@ -94,9 +94,7 @@ def _regulatory(cycle: Cycle) -> SpeedTrace:
         v = np.array([float(r["cycMps"]) for r in rows])
         g = np.array([float(r["cycGrade"]) for r in rows])
     except (KeyError, ValueError) as exc:
-        raise InputError(
-            f"protocols/data/{name}: expected columns cycSecs, cycMps, cycGrade ({exc})"
-        ) from None
+        raise InputError(f"protocols/data/{name}: expected columns cycSecs, cycMps, cycGrade ({exc})") from None
     return SpeedTrace(cycle.value, t - t[0], v, g, f"protocols/data/{name}")
 
 

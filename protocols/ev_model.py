@@ -70,9 +70,7 @@ class EVModel:
         """The parameters as plain values (stored with each drive profile)."""
         return asdict(self)
 
-    def wheel_power(
-        self, t: np.ndarray, speed_mps: np.ndarray, grade: np.ndarray | None = None
-    ) -> np.ndarray:
+    def wheel_power(self, t: np.ndarray, speed_mps: np.ndarray, grade: np.ndarray | None = None) -> np.ndarray:
         """Road-load power at the wheels [W] on each hold interval (length ``t.size - 1``)."""
         t = np.asarray(t, dtype=float)
         v = np.asarray(speed_mps, dtype=float)
@@ -88,10 +86,7 @@ class EVModel:
         acc = np.diff(v) / dt
         force = (
             self.rotating_mass_factor * self.mass_kg * acc
-            + self.mass_kg
-            * GRAVITY_M_S2
-            * (self.rolling_resistance * np.cos(theta) + np.sin(theta))
-            * (v_mid > 0)
+            + self.mass_kg * GRAVITY_M_S2 * (self.rolling_resistance * np.cos(theta) + np.sin(theta)) * (v_mid > 0)
             + 0.5 * self.air_density_kg_m3 * self.drag_coefficient * self.frontal_area_m2 * v_mid**2
         )
         return force * v_mid
@@ -106,9 +101,7 @@ class EVModel:
         regen = np.where(v_mid >= self.regen_min_speed_mps, regen, 0.0)
         return traction + regen + self.aux_power_w
 
-    def cell_current(
-        self, t: np.ndarray, speed_mps: np.ndarray, grade: np.ndarray | None = None
-    ) -> np.ndarray:
+    def cell_current(self, t: np.ndarray, speed_mps: np.ndarray, grade: np.ndarray | None = None) -> np.ndarray:
         """Cell current [A] on each hold interval, positive = charge (so traction is negative)."""
         p_batt = self.battery_power(self.wheel_power(t, speed_mps, grade), speed_mps)
         return -p_batt / (self.n_cells * self.cell_voltage_v)

@@ -49,8 +49,7 @@ class Profile:
         if bad.size:
             k = bad[0] + 1
             raise InputError(
-                f"{where}: time must increase strictly; sample {k} (t = {t[k]:g} s) "
-                f"follows t = {t[k - 1]:g} s"
+                f"{where}: time must increase strictly; sample {k} (t = {t[k]:g} s) follows t = {t[k - 1]:g} s"
             )
         if self.soc0 is not None and not 0.0 <= float(self.soc0) <= 1.0:
             raise InputError(f"{where}: start SOC must be in [0, 1], got {self.soc0}")
@@ -109,8 +108,7 @@ class Profile:
                     cs.append(float(row[ii]))
                 except (ValueError, IndexError):
                     raise InputError(
-                        f"{path}, line {line}: expected numbers in {TIME_COLUMN!r} and "
-                        f"{CURRENT_COLUMN!r}, got {row}"
+                        f"{path}, line {line}: expected numbers in {TIME_COLUMN!r} and {CURRENT_COLUMN!r}, got {row}"
                     ) from None
         try:
             return cls(np.array(ts), np.array(cs), **meta)
@@ -121,9 +119,7 @@ class Profile:
         """Write ``Test Time / s``, ``Current / A`` (BDF names, positive = charge)."""
         path = Path(path)
         data = np.column_stack([self.t, self.current])
-        np.savetxt(
-            path, data, delimiter=",", header=f"{TIME_COLUMN},{CURRENT_COLUMN}", comments="", fmt="%.10g"
-        )
+        np.savetxt(path, data, delimiter=",", header=f"{TIME_COLUMN},{CURRENT_COLUMN}", comments="", fmt="%.10g")
         return path
 
     @classmethod
@@ -166,9 +162,7 @@ class Profile:
         return np.diff(edges), i[starts].copy()
 
     @classmethod
-    def from_segments(
-        cls, durations: np.ndarray, currents: np.ndarray, *, t0: float = 0.0, **meta: Any
-    ) -> Profile:
+    def from_segments(cls, durations: np.ndarray, currents: np.ndarray, *, t0: float = 0.0, **meta: Any) -> Profile:
         """Build a profile from zero-order-hold pieces (durations [s], currents [A])."""
         d = np.asarray(durations, dtype=float).reshape(-1)
         c = np.asarray(currents, dtype=float).reshape(-1)

@@ -102,15 +102,11 @@ class EndCondition:
             raise InputError(f"end condition {self.quantity.value}: value must be finite, got {v}")
         if self.quantity in (Quantity.TIME, Quantity.CAPACITY):
             if self.op is not Comparison.GE:
-                raise InputError(
-                    f"end condition on {self.quantity.value} must use '>=', got '{self.op.value}'"
-                )
+                raise InputError(f"end condition on {self.quantity.value} must use '>=', got '{self.op.value}'")
             if v <= 0:
                 raise InputError(f"end condition {self.quantity.value} >= {v:g}: value must be positive")
         elif v < 0:
-            raise InputError(
-                f"end condition {self.quantity.value} {self.op.value} {v:g}: must not be negative"
-            )
+            raise InputError(f"end condition {self.quantity.value} {self.op.value} {v:g}: must not be negative")
 
     def __str__(self) -> str:
         v = self.value
@@ -375,9 +371,7 @@ class Protocol:
     # --- construction helpers -------------------------------------------------------------------------
 
     @classmethod
-    def from_profile(
-        cls, profile: Profile, *, limits: SafetyLimits | None = None, name: str | None = None
-    ) -> Protocol:
+    def from_profile(cls, profile: Profile, *, limits: SafetyLimits | None = None, name: str | None = None) -> Protocol:
         """A protocol of one profile step."""
         label = f"profile {profile.id}" if profile.id is not None else "profile"
         return cls(name or label, (ProfileStep(profile, label),), limits or SafetyLimits())
@@ -389,8 +383,7 @@ class Protocol:
             where = f"protocol {self.name!r}, step {k} ({s.kind.value})"
             if isinstance(s, ConstantCurrent | CCCV) and abs(s.current) > lim.current_max * (1 + 1e-12):
                 raise InputError(
-                    f"{where}: current {s.current:g} A exceeds the limit {lim.current_max:g} A "
-                    "(limits.current_max)"
+                    f"{where}: current {s.current:g} A exceeds the limit {lim.current_max:g} A (limits.current_max)"
                 )
             if isinstance(s, ProfileStep) and s.profile.max_abs_current > lim.current_max * (1 + 1e-12):
                 raise InputError(
@@ -443,8 +436,7 @@ class Protocol:
         for key in data:
             if key not in _TOP_FIELDS:
                 raise InputError(
-                    f"{source}: unknown field {key!r}{_hint(key, _TOP_FIELDS)}; "
-                    f"allowed: {', '.join(_TOP_FIELDS)}"
+                    f"{source}: unknown field {key!r}{_hint(key, _TOP_FIELDS)}; allowed: {', '.join(_TOP_FIELDS)}"
                 )
         name = data.get("name", Path(source).stem)
         if not isinstance(name, str):
@@ -629,8 +621,7 @@ def _step_from_dict(
     for key in raw:
         if key not in allowed:
             raise InputError(
-                f"{where} ({kind.value}): unknown field {key!r}{_hint(key, allowed)}; "
-                f"allowed: {', '.join(allowed)}"
+                f"{where} ({kind.value}): unknown field {key!r}{_hint(key, allowed)}; allowed: {', '.join(allowed)}"
             )
 
     def num(name: str, unit: str) -> float:
@@ -673,9 +664,7 @@ def _step_from_dict(
         raise InputError(msg if msg.startswith(source) else f"{where} ({kind.value}): {msg}") from None
 
 
-def _profile_from(
-    raw: Mapping[str, Any], where: str, base_dir: Path | None, resolver: _LibraryResolver
-) -> Profile:
+def _profile_from(raw: Mapping[str, Any], where: str, base_dir: Path | None, resolver: _LibraryResolver) -> Profile:
     sources = [key for key in ("file", "library_id") if key in raw]
     inline = raw.get("profile")
     if inline is not None and not isinstance(inline, Mapping):
@@ -703,8 +692,6 @@ def _profile_from(
         if not isinstance(inline.get(key), list):
             raise InputError(f"field 'profile.{key}' must be a list of numbers")
     try:
-        return Profile(
-            np.asarray(inline["t"], dtype=float), np.asarray(inline["current"], dtype=float), **meta
-        )
+        return Profile(np.asarray(inline["t"], dtype=float), np.asarray(inline["current"], dtype=float), **meta)
     except (TypeError, ValueError):
         raise InputError("fields 'profile.t' and 'profile.current' must hold numbers only") from None

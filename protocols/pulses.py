@@ -85,9 +85,7 @@ def pulse_pieces(spec: PulseSpec) -> tuple[np.ndarray, np.ndarray]:
     return edges, vals
 
 
-def pulse_profile(
-    spec: PulseSpec, *, charge_ah: float = L1_CHARGE_AH, dt: float = SAMPLE_DT_S, **meta: Any
-) -> Profile:
+def pulse_profile(spec: PulseSpec, *, charge_ah: float = L1_CHARGE_AH, dt: float = SAMPLE_DT_S, **meta: Any) -> Profile:
     """The pulse train of ``spec`` sampled every ``dt`` [s] and at every edge, L1-normalised [Ah]."""
     edges, vals = pulse_pieces(spec)
     t, shape = sample_piecewise(edges, vals, dt)

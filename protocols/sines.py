@@ -46,9 +46,7 @@ def _whole(x: float, what: str) -> int:
     return n
 
 
-def sine_profile(
-    spec: SineSpec, *, charge_ah: float = L1_CHARGE_AH, dt: float = SAMPLE_DT_S, **meta: Any
-) -> Profile:
+def sine_profile(spec: SineSpec, *, charge_ah: float = L1_CHARGE_AH, dt: float = SAMPLE_DT_S, **meta: Any) -> Profile:
     """The sinusoid of ``spec`` sampled every ``dt`` [s], L1-normalised to ``charge_ah`` [Ah]."""
     per_period = _whole(1.0 / (spec.frequency_hz * dt), f"samples per period at {spec.frequency_hz:g} Hz")
     periods = _whole(spec.total_s * spec.frequency_hz, f"periods in {spec.total_s:g} s")

@@ -51,13 +51,9 @@ def ocv_test(
     steps: list[Step] = [_full_charge(cap), Rest((after(rest_s),), "rest")]
     for n in range(1, cycles + 1):
         steps += [
-            ConstantCurrent(
-                -c_rate * cap, (voltage_below(V_MIN), after(limit_s)), f"C/{1 / c_rate:g} discharge {n}"
-            ),
+            ConstantCurrent(-c_rate * cap, (voltage_below(V_MIN), after(limit_s)), f"C/{1 / c_rate:g} discharge {n}"),
             Rest((after(rest_s),), "rest"),
-            ConstantCurrent(
-                c_rate * cap, (voltage_above(V_MAX), after(limit_s)), f"C/{1 / c_rate:g} charge {n}"
-            ),
+            ConstantCurrent(c_rate * cap, (voltage_above(V_MAX), after(limit_s)), f"C/{1 / c_rate:g} charge {n}"),
             Rest((after(rest_s),), "rest"),
         ]
     name = f"OCV test C/{1 / c_rate:g} x{cycles}"
@@ -86,15 +82,11 @@ def hppc(
         soc = 1.0 - n * soc_step
         steps += [
             Rest((after(relax_s),), f"relax at SOC {soc:.2f}"),
-            ConstantCurrent(
-                -discharge_pulse_c * cap, (after(pulse_s), voltage_below(V_MIN)), "discharge pulse"
-            ),
+            ConstantCurrent(-discharge_pulse_c * cap, (after(pulse_s), voltage_below(V_MIN)), "discharge pulse"),
             Rest((after(pulse_rest_s),), "pulse rest"),
             ConstantCurrent(charge_pulse_c * cap, (after(pulse_s), voltage_above(V_MAX)), "charge pulse"),
             Rest((after(pulse_rest_s),), "pulse rest"),
-            ConstantCurrent(
-                -step_c_rate * cap, (capacity_reached(soc_step * cap), voltage_below(V_MIN)), "SOC step"
-            ),
+            ConstantCurrent(-step_c_rate * cap, (capacity_reached(soc_step * cap), voltage_below(V_MIN)), "SOC step"),
         ]
     return Protocol("HPPC", tuple(steps), limits or SafetyLimits(), cap).check()
 
@@ -135,9 +127,7 @@ def conventional(
     steps += [_full_charge(cap), Rest((after(rest_s),), "rest")]
     if soc0 < 1.0:
         steps.append(
-            ConstantCurrent(
-                -0.5 * cap, (capacity_reached((1 - soc0) * cap), voltage_below(V_MIN)), "to start SOC"
-            )
+            ConstantCurrent(-0.5 * cap, (capacity_reached((1 - soc0) * cap), voltage_below(V_MIN)), "to start SOC")
         )
     steps += [Rest((after(rest_s),), "rest"), ProfileStep(p, "drive cycle"), Rest((after(rest_s),), "rest")]
     return Protocol("conventional", tuple(steps), limits or SafetyLimits(), cap).check()

@@ -76,21 +76,44 @@ def _plan_groups(plan: Path) -> list[tuple[list[str], set[str]]]:
 @click.command("fit")
 @click.argument("data", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--cell", "cell_name", required=True, help="Start cell: a built-in name or a BPX file.")
-@click.option("--plan", type=click.Path(dir_okay=False), default=None,
-              help="Design plan (protocols TOML); its summary.json gives the parameter groups.")
-@click.option("--params", default="table9", show_default=True,
-              help="Without a plan: 'table9' (paper's groups, cumulative), 'all', or comma-separated names.")
-@click.option("--ocp-terms", type=int, default=0, show_default=True,
-              help="Terms of the positive-OCP correction in the equilibrium fit (0 = the paper's method).")
+@click.option(
+    "--plan",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Design plan (protocols TOML); its summary.json gives the parameter groups.",
+)
+@click.option(
+    "--params",
+    default="table9",
+    show_default=True,
+    help="Without a plan: 'table9' (paper's groups, cumulative), 'all', or comma-separated names.",
+)
+@click.option(
+    "--ocp-terms",
+    type=int,
+    default=0,
+    show_default=True,
+    help="Terms of the positive-OCP correction in the equilibrium fit (0 = the paper's method).",
+)
 @click.option("--rated-capacity", type=float, default=None, help="Set the cell's 1C capacity [Ah].")
 @click.option("--soc0", type=float, default=None, help="Start SOC of data that do not start at rest.")
 @click.option("--dt", type=float, default=1.0, show_default=True, help="Resample dynamic data to this step [s].")
 @click.option("--max-iter", type=int, default=40, show_default=True, help="Function evaluations per stage.")
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="cell.bpx.json")
-def fit(data: tuple[str, ...], cell_name: str, plan: str | None, params: str, ocp_terms: int,
-        rated_capacity: float | None, soc0: float | None, dt: float, max_iter: int, fix_sign: bool,
-        output: str) -> None:
+def fit(
+    data: tuple[str, ...],
+    cell_name: str,
+    plan: str | None,
+    params: str,
+    ocp_terms: int,
+    rated_capacity: float | None,
+    soc0: float | None,
+    dt: float,
+    max_iter: int,
+    fix_sign: bool,
+    output: str,
+) -> None:
     """Identify CELL's parameters from DATA (equilibrium from an OCV test, dynamics by weighted LM)."""
     from battlab.cell import Cell
     from battlab.identify import fit as F
@@ -114,8 +137,12 @@ def fit(data: tuple[str, ...], cell_name: str, plan: str | None, params: str, oc
     extra: dict[str, Any] = {}
     if ocv:
         d = ocv[0]
-        eq = fit_equilibrium(ocv_curve(d.t, d.current, d.voltage, source=d.source), cell, ocp_terms=ocp_terms,
-                             rated_capacity=rated_capacity)
+        eq = fit_equilibrium(
+            ocv_curve(d.t, d.current, d.voltage, source=d.source),
+            cell,
+            ocp_terms=ocp_terms,
+            rated_capacity=rated_capacity,
+        )
         cell = eq.cell
         rep = eq.report()
         summary["equilibrium"] = rep
@@ -124,9 +151,11 @@ def fit(data: tuple[str, ...], cell_name: str, plan: str | None, params: str, oc
         for k in ("eps_s_n", "eps_s_p", "n_Li"):
             summary["parameters"][k] = {"value": rep[k], "ci95": [None, None], "at_bound": False}
         extra["equilibrium"] = {k: v for k, v in rep.items() if not isinstance(v, str)}
-        click.echo(f"equilibrium ({d.name}): capacity {eq.capacity:.4f} Ah, eps_s_n {eq.eps_s_n:.4f}, "
-                   f"eps_s_p {eq.eps_s_p:.4f}, n_Li {eq.n_Li:.5f} mol, RMSE {eq.rmse_mV:.1f} mV "
-                   f"({eq.rmse_5_95_mV:.1f} mV over 5-95 % SOC)")
+        click.echo(
+            f"equilibrium ({d.name}): capacity {eq.capacity:.4f} Ah, eps_s_n {eq.eps_s_n:.4f}, "
+            f"eps_s_p {eq.eps_s_p:.4f}, n_Li {eq.n_Li:.5f} mol, RMSE {eq.rmse_mV:.1f} mV "
+            f"({eq.rmse_5_95_mV:.1f} mV over 5-95 % SOC)"
+        )
     elif rated_capacity is not None:
         cell = cell.with_values(Q_nom=rated_capacity)
     if dyn:
@@ -138,8 +167,10 @@ def fit(data: tuple[str, ...], cell_name: str, plan: str | None, params: str, oc
 
         def show(k: int, r: F.FitResult) -> None:
             c = r.convergence
-            click.echo(f"stage {k}: {len(r.names)} parameters, {c.iterations} evaluations, cost {c.cost_start:.4g} "
-                       f"-> {c.cost:.4g}, |g| {c.gradient_norm:.3g}, {c.reason}")
+            click.echo(
+                f"stage {k}: {len(r.names)} parameters, {c.iterations} evaluations, cost {c.cost_start:.4g} "
+                f"-> {c.cost:.4g}, |g| {c.gradient_norm:.3g}, {c.reason}"
+            )
             _stage_figures(r, out.with_name(f"{stem}.stage{k}"))
 
         results = F.fit_groupwise(cell, stages, options=F.Options(max_nfev=max_iter), forward=fm, progress=show)
@@ -147,34 +178,51 @@ def fit(data: tuple[str, ...], cell_name: str, plan: str | None, params: str, oc
         cell = last.cell
         summary["converged"] = bool(summary["converged"] and all(r.convergence.converged for r in results))
         for e in last.statistics.estimates:
-            summary["parameters"][e.name] = {"value": e.value, "ci95": list(e.ci95) if e.ci95 else [None, None],
-                                             "at_bound": e.at_bound is not None, "identifiable": e.identifiable,
-                                             "set_identified": e.set_identified}
+            summary["parameters"][e.name] = {
+                "value": e.value,
+                "ci95": list(e.ci95) if e.ci95 else [None, None],
+                "at_bound": e.at_bound is not None,
+                "identifiable": e.identifiable,
+                "set_identified": e.set_identified,
+            }
         summary["rmse_mV"].update(last.rmse_mV)
         summary["stages"] = [r.report() for r in results]
         _print_estimates(last)
         if last.statistics.s2 > 10:
-            click.echo(f"warning: weighted residual variance s² = {last.statistics.s2:.3g} >> 1: the residuals are "
-                       "model error, not measurement noise (or the data come from another cell); the intervals of "
-                       "eq. 44 are too narrow, summary.json also gives them scaled by s² (ci95_scaled)", err=True)
+            click.echo(
+                f"warning: weighted residual variance s² = {last.statistics.s2:.3g} >> 1: the residuals are "
+                "model error, not measurement noise (or the data come from another cell); the intervals of "
+                "eq. 44 are too narrow, summary.json also gives them scaled by s² (ci95_scaled)",
+                err=True,
+            )
         if not last.statistics.valid:
             click.echo(f"warning: {last.statistics.reason}", err=True)
         extra["confidence_intervals"] = {e.name: list(e.ci95) for e in last.statistics.estimates if e.ci95}
         if last.statistics.invariants:
-            extra["invariants"] = {i.name: {"value": i.value, "ci95": list(i.ci95), "definition": i.definition}
-                                   for i in last.statistics.invariants}
+            extra["invariants"] = {
+                i.name: {"value": i.value, "ci95": list(i.ci95), "definition": i.definition}
+                for i in last.statistics.invariants
+            }
         if last.statistics.unidentifiable:
             extra["not_identifiable"] = list(last.statistics.unidentifiable)
             extra["null_space"] = [dict(d) for d in last.statistics.null_space]
         extra["at_bound"] = {e.name: e.at_bound is not None for e in last.statistics.estimates}
-        extra["fit_report"] = {"converged": summary["converged"], "iterations": last.convergence.iterations,
-                               "cost": last.convergence.cost, "s2": last.statistics.s2,
-                               "rmse_mV": last.rmse_mV, "reason": last.convergence.reason}
+        extra["fit_report"] = {
+            "converged": summary["converged"],
+            "iterations": last.convergence.iterations,
+            "cost": last.convergence.cost,
+            "s2": last.statistics.s2,
+            "rmse_mV": last.rmse_mV,
+            "reason": last.convergence.reason,
+        }
     cell.renamed(out.name.removesuffix(".json").removesuffix(".bpx")).to_bpx(out, **extra)
     summary_path = out.with_name("summary.json")
     if plan is not None and Path(plan).with_name("summary.json").resolve() == summary_path.resolve():
-        click.echo(f"warning: {summary_path} (the design's summary) is replaced by the fit's summary; write the "
-                   "fitted cell to another directory to keep both", err=True)
+        click.echo(
+            f"warning: {summary_path} (the design's summary) is replaced by the fit's summary; write the "
+            "fitted cell to another directory to keep both",
+            err=True,
+        )
     summary_path.write_text(json.dumps(summary, indent=2, default=_json_default))
     click.echo(f"wrote {out} and {summary_path}")
 
@@ -184,8 +232,11 @@ def _stage_figures(r: Any, prefix: Path) -> None:
     from battlab.identify.statistics import correlation
     from battlab.identify.validation import plot_cdf, plot_correlation
 
-    plot_cdf({"before": r.errors_before_mV, "after": r.errors_after_mV}, f"{prefix}.error_cdf.png",
-             f"stage {r.stage}: |voltage error| before and after")
+    plot_cdf(
+        {"before": r.errors_before_mV, "after": r.errors_after_mV},
+        f"{prefix}.error_cdf.png",
+        f"stage {r.stage}: |voltage error| before and after",
+    )
     st = r.statistics
     corr = st.correlation if st.correlation is not None else correlation(st.covariance_identifiable)
     if corr is not None:
@@ -202,8 +253,9 @@ def _print_estimates(r: Any) -> None:
         t.add_column(col)
     for e in r.statistics.estimates:
         ci = f"[{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]" if e.ci95 else "-"
-        note = ("symmetry orbit (set-identified)" if e.set_identified else
-                "not identifiable" if not e.identifiable else "")
+        note = (
+            "symmetry orbit (set-identified)" if e.set_identified else "not identifiable" if not e.identifiable else ""
+        )
         note += f" at {e.at_bound} bound" + ("" if e.set_identified else " (one-sided)") if e.at_bound else ""
         t.add_row(e.name, f"{e.value:.4g}", ci, note.strip())
     for i in r.statistics.invariants:
@@ -225,10 +277,17 @@ def _json_default(obj: Any) -> Any:
 @click.option("--soc0", type=float, default=None, help="Start SOC of data that do not start at rest.")
 @click.option("--dt", type=float, default=1.0, show_default=True, help="Resample to this step [s].")
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
-@click.option("-o", "--output", default="validation", show_default=True, type=click.Path(file_okay=False),
-              help="Directory for the figures and summary.json.")
-def validate(data: tuple[str, ...], cells: tuple[str, ...], soc0: float | None, dt: float, fix_sign: bool,
-             output: str) -> None:
+@click.option(
+    "-o",
+    "--output",
+    default="validation",
+    show_default=True,
+    type=click.Path(file_okay=False),
+    help="Directory for the figures and summary.json.",
+)
+def validate(
+    data: tuple[str, ...], cells: tuple[str, ...], soc0: float | None, dt: float, fix_sign: bool, output: str
+) -> None:
     """Print the voltage RMSE of each CELL on each DATA file and save the figures (Figs. 7 and 9)."""
     from battlab.cell import Cell
     from battlab.identify.experiments import experiments_from_data

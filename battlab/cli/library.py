@@ -53,9 +53,7 @@ def build(output: str) -> None:
 def list_(library_path: str | None, kind: str | None, soc0: float | None) -> None:
     """One line per profile: id, kind, start SOC, duration, peak current, net charge, flag, name."""
     lib = _open(library_path)
-    click.echo(
-        f"{'id':>4}  {'kind':<6}{'soc0':>5}{'dur/s':>7}{'|I|max/A':>9}{'net/Ah':>8}  {'screen':<6}  name"
-    )
+    click.echo(f"{'id':>4}  {'kind':<6}{'soc0':>5}{'dur/s':>7}{'|I|max/A':>9}{'net/Ah':>8}  {'screen':<6}  name")
     for p in lib.select(kind=kind, soc0=soc0):
         s = lib.screening.get(int(p.id))  # type: ignore[arg-type]
         flag = "-" if s is None else ("ok" if s.ok else "FLAG")
@@ -90,9 +88,7 @@ def show(profile_id: int, library_path: str | None) -> None:
 @library.command("plot")
 @click.argument("profile_id", type=int)
 @_LIBRARY_OPTION
-@click.option(
-    "-o", "--output", type=click.Path(dir_okay=False), default=None, help="PNG (default profile_<ID>.png)."
-)
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, help="PNG (default profile_<ID>.png).")
 def plot(profile_id: int, library_path: str | None, output: str | None) -> None:
     """PNG of current and SOC vs time for one profile."""
     lib = _open(library_path)

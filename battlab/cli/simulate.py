@@ -17,10 +17,16 @@ from protocols.profile import Profile
 @click.option("--ambient", type=float, default=25.0, show_default=True, help="Ambient temperature [degC].")
 @click.option("--isothermal", is_flag=True, help="Hold the cell at the ambient temperature.")
 @click.option("--sens", default="", help="Comma-separated parameters for dV/dθ̄ (e.g. R_s_n,D_s_n) or 'all'.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="OUT.bdf.csv or OUT.h5 (BDF column names, current positive = charge).")
-def simulate(cell: str, profile: str, soc0: float | None, ambient: float, isothermal: bool, sens: str,
-             output: str) -> None:
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="OUT.bdf.csv or OUT.h5 (BDF column names, current positive = charge).",
+)
+def simulate(
+    cell: str, profile: str, soc0: float | None, ambient: float, isothermal: bool, sens: str, output: str
+) -> None:
     """Simulate CELL (a built-in name or a BPX file) under PROFILE.
 
     PROFILE is a CSV with the columns 'Test Time / s' and 'Current / A' (positive = charge), or
@@ -43,8 +49,12 @@ def simulate(cell: str, profile: str, soc0: float | None, ambient: float, isothe
     console = Console(stderr=True)
     with console.status(f"simulating {Path(profile).name} on {c.name} ({prof.duration:.0f} s)"):
         res = run(c, prof, soc0=soc0, ambient=ambient + 273.15, isothermal=isothermal, sensitivities=names)
-    out = write_result(res, output, ambient + 273.15, {"cell": c.name, "cell_hash": c.hash(), "profile": str(profile),
-                                                        "soc0": soc0, "isothermal": isothermal})
+    out = write_result(
+        res,
+        output,
+        ambient + 273.15,
+        {"cell": c.name, "cell_hash": c.hash(), "profile": str(profile), "soc0": soc0, "isothermal": isothermal},
+    )
     end = "completed" if res.ended_by is None else f"ended early: {res.ended_by} at t = {res.t[-1]:.1f} s"
     console.print(
         f"{out}: {res.t.size} samples, V {res.voltage.min():.4f}–{res.voltage.max():.4f} V, "

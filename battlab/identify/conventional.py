@@ -33,16 +33,18 @@ def profiles(cell: Cell, *, dt_cc: float = 10.0) -> list[tuple[Profile, float]]:
     q = float(cell["Q_nom"])
     out: list[tuple[Profile, float]] = []
     for c in DISCHARGE_C:
-        out.append((Profile.constant(-c * q, 1.3 * 3600 / c, dt_cc, id=f"CC discharge {c:.3g}C", kind="cc"),
-                    DISCHARGE_SOC0))
+        out.append(
+            (Profile.constant(-c * q, 1.3 * 3600 / c, dt_cc, id=f"CC discharge {c:.3g}C", kind="cc"), DISCHARGE_SOC0)
+        )
     for c in CHARGE_C:
         out.append((Profile.constant(c * q, 1.3 * 3600 / c, dt_cc, id=f"CC charge {c:.3g}C", kind="cc"), 0.0))
     out.append((drive_profile(Cycle.UDDS, soc0=0.8, id="UDDS"), 0.8))
     return out
 
 
-def virtual_experiments(forward: ForwardModel, truth: Cell, *, seed: int, noise: NoiseModel | None = None,
-                        dt_cc: float = 10.0) -> list[Experiment]:
+def virtual_experiments(
+    forward: ForwardModel, truth: Cell, *, seed: int, noise: NoiseModel | None = None, dt_cc: float = 10.0
+) -> list[Experiment]:
     """The conventional tests on the virtual truth, cut where the true cell reaches its voltage limit."""
     exps = []
     th = forward.theta_of(truth)
@@ -51,10 +53,14 @@ def virtual_experiments(forward: ForwardModel, truth: Cell, *, seed: int, noise:
         n = out.voltage.size
         if n < 10 or (out.ended_by or "").startswith("solver"):
             raise InputError(f"conventional test {prof.id}: the true cell's simulation failed ({out.ended_by})")
-        cut = Profile(prof.t[:n], np.r_[prof.current[: n - 1], prof.current[n - 2]], id=prof.id, kind=prof.kind,
-                      soc0=soc0)
-        exps.append(synthesize(forward, truth, cut, soc0, seed=seed * 1000 + k, noise=noise, name=str(prof.id),
-                               clean=out.voltage))
+        cut = Profile(
+            prof.t[:n], np.r_[prof.current[: n - 1], prof.current[n - 2]], id=prof.id, kind=prof.kind, soc0=soc0
+        )
+        exps.append(
+            synthesize(
+                forward, truth, cut, soc0, seed=seed * 1000 + k, noise=noise, name=str(prof.id), clean=out.voltage
+            )
+        )
     return exps
 
 

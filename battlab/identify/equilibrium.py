@@ -94,12 +94,12 @@ def ocv_curve(
         return float(j0), float(j1)
 
     d, c = longest(dis), longest(chg)
-    lo = min(q[r[0]:r[1]].min() for r in (d, c) if r is not None)
-    hi = max(q[r[0]:r[1]].max() for r in (d, c) if r is not None)
+    lo = min(q[r[0] : r[1]].min() for r in (d, c) if r is not None)
+    hi = max(q[r[0] : r[1]].max() for r in (d, c) if r is not None)
     grid = np.linspace(lo, hi, n_grid)
 
     def on_grid(r: tuple[int, int, int]) -> np.ndarray:
-        qq, vv = q[r[0]:r[1]], voltage[r[0]:r[1]]
+        qq, vv = q[r[0] : r[1]], voltage[r[0] : r[1]]
         o = np.argsort(qq)
         return np.interp(grid, qq[o], vv[o], left=np.nan, right=np.nan)
 
@@ -119,10 +119,12 @@ def ocv_curve(
         j0, j1 = jump(branch)
         shift = j0 if np.isfinite(j0) else 0.0
         out = np.where(only, v - sign * shift, out)
-        notes.append(f"{'discharge' if sign < 0 else 'charge'} only on {only.mean():.0%} of the range, shifted by "
-                     f"its rest-step overpotential ({1e3 * shift:.1f} mV)")
+        notes.append(
+            f"{'discharge' if sign < 0 else 'charge'} only on {only.mean():.0%} of the range, shifted by "
+            f"its rest-step overpotential ({1e3 * shift:.1f} mV)"
+        )
     keep = np.isfinite(out)
-    method = ("mean of charge and discharge at equal charge passed" if both.any() else "single branch")
+    method = "mean of charge and discharge at equal charge passed" if both.any() else "single branch"
     if notes:
         method += "; " + "; ".join(notes)
     return OcvCurve(grid[keep], out[keep], method, half_gap, source)
@@ -160,16 +162,31 @@ class Equilibrium:
     def report(self) -> dict[str, object]:
         """JSON-able summary (Table 4, windows, capacities, Table 5, RMSEs, how the curve was made)."""
         return {
-            "eps_s_n": self.eps_s_n, "eps_s_p": self.eps_s_p, "n_Li": self.n_Li,
-            "H_n_mol": self.H_n, "H_p_mol": self.H_p, "Q_n_Ah": self.Q_n, "Q_p_Ah": self.Q_p, "Q_Li_Ah": self.Q_Li,
+            "eps_s_n": self.eps_s_n,
+            "eps_s_p": self.eps_s_p,
+            "n_Li": self.n_Li,
+            "H_n_mol": self.H_n,
+            "H_p_mol": self.H_p,
+            "Q_n_Ah": self.Q_n,
+            "Q_p_Ah": self.Q_p,
+            "Q_Li_Ah": self.Q_Li,
             "capacity_Ah": self.capacity,
-            "window": {"sto_n_0": self.window[0], "sto_n_100": self.window[1], "sto_p_0": self.window[2],
-                       "sto_p_100": self.window[3]},
+            "window": {
+                "sto_n_0": self.window[0],
+                "sto_n_100": self.window[1],
+                "sto_p_0": self.window[2],
+                "sto_p_100": self.window[3],
+            },
             "table5": {f"{int(round(100 * s))}%": v for s, v in self.table5.items()},
-            "rmse_mV": self.rmse_mV, "rmse_5_95_mV": self.rmse_5_95_mV, "max_error_5_95_mV": self.max_error_5_95_mV,
-            "area_scale": self.area_scale, "ocp_correction_terms": len(self.ocp_correction),
+            "rmse_mV": self.rmse_mV,
+            "rmse_5_95_mV": self.rmse_5_95_mV,
+            "max_error_5_95_mV": self.max_error_5_95_mV,
+            "area_scale": self.area_scale,
+            "ocp_correction_terms": len(self.ocp_correction),
             "curve_method": self.curve.method,
-            "half_gap_mV": self.curve.half_gap_mV, "converged": self.converged, "message": self.message,
+            "half_gap_mV": self.curve.half_gap_mV,
+            "converged": self.converged,
+            "message": self.message,
         }
 
 
@@ -189,8 +206,9 @@ def _bumps(x: np.ndarray, coeffs: np.ndarray, a: float, b: float) -> np.ndarray:
 def correction_expr(coeffs: tuple[float, ...], window: tuple[float, float]) -> str:
     """ΔU⁺ as an expression in x (exp only, so PyBaMM's BPX reader takes it)."""
     centres, width = _centres(window[0], window[1], len(coeffs))
-    terms = [f"{float(c)!r}*exp(-((x - {float(m)!r})/{float(width)!r})**2)"
-             for c, m in zip(coeffs, centres, strict=True)]
+    terms = [
+        f"{float(c)!r}*exp(-((x - {float(m)!r})/{float(width)!r})**2)" for c, m in zip(coeffs, centres, strict=True)
+    ]
     return " + ".join(terms) if terms else "0"
 
 
@@ -232,8 +250,13 @@ def fit_equilibrium(
     best = None
     for a, b, c, d in itertools.product((0.7, 0.8, 0.9), (0.01, 0.05), (0.15, 0.3), (0.8, 0.95)):
         x0 = np.r_[a, b, c, d, np.zeros(nc)]
-        sol = least_squares(lambda p: model(p) - y, x0, bounds=(lb, ub), method="trf", x_scale=np.r_[
-            np.full(4, 0.05), np.full(nc, 0.01)])
+        sol = least_squares(
+            lambda p: model(p) - y,
+            x0,
+            bounds=(lb, ub),
+            method="trf",
+            x_scale=np.r_[np.full(4, 0.05), np.full(nc, 0.01)],
+        )
         if best is None or sol.cost < best.cost:
             best = sol
     p = best.x
@@ -274,8 +297,12 @@ def fit_equilibrium(
     drop = {k for k in ("sto_n_0", "sto_n_100", "sto_p_0", "sto_p_100") if k in cell.values}
     base_vals = {k: v for k, v in cell.values.items() if k not in drop}
     try:
-        new = Cell(cell.name, {**base_vals, **values}, {k: v for k, v in cell.sources.items() if k not in values},
-                   cell.description)
+        new = Cell(
+            cell.name,
+            {**base_vals, **values},
+            {k: v for k, v in cell.sources.items() if k not in values},
+            cell.description,
+        )
     except InputError as exc:
         raise InputError(f"equilibrium fit: the identified values do not make a valid cell: {exc}") from None
     new = new.renamed(f"{cell.name}-ocv", f"{cell.description} (equilibrium identified from {curve.source or 'data'})")
@@ -290,17 +317,30 @@ def fit_equilibrium(
     inner = (soc >= 0.05) & (soc <= 0.95)
     table5 = {lvl: float(new.ocv(lvl)) for lvl in (0.8, 0.6, 0.4, 0.2)}
     return Equilibrium(
-        theta_n0=float(theta_n0), H_n=float(H_n), H_p=float(H_p), n_Li=float(n_li),
-        eps_s_n=float(values["eps_s_n"]), eps_s_p=float(values["eps_s_p"]),
-        Q_n=float(F * H_n / 3600.0), Q_p=float(F * H_p / 3600.0), Q_Li=float(F * n_li / 3600.0),
+        theta_n0=float(theta_n0),
+        H_n=float(H_n),
+        H_p=float(H_p),
+        n_Li=float(n_li),
+        eps_s_n=float(values["eps_s_n"]),
+        eps_s_p=float(values["eps_s_p"]),
+        Q_n=float(F * H_n / 3600.0),
+        Q_p=float(F * H_p / 3600.0),
+        Q_Li=float(F * n_li / 3600.0),
         capacity=float(capacity),
-        window=window, table5=table5,
+        window=window,
+        table5=table5,
         rmse_mV=float(1e3 * np.sqrt(np.mean(err**2))),
         rmse_5_95_mV=float(1e3 * np.sqrt(np.mean(err[inner] ** 2))) if inner.any() else float("nan"),
         max_error_5_95_mV=float(1e3 * np.max(np.abs(err[inner]))) if inner.any() else float("nan"),
-        area_scale=float(area / float(cell["A"])), ocp_correction=coeffs, correction_window=corr_window,
-        curve=curve, model_voltage=model_v, soc=soc,
-        cell=new, converged=bool(best.status > 0), message=str(best.message),
+        area_scale=float(area / float(cell["A"])),
+        ocp_correction=coeffs,
+        correction_window=corr_window,
+        curve=curve,
+        model_voltage=model_v,
+        soc=soc,
+        cell=new,
+        converged=bool(best.status > 0),
+        message=str(best.message),
     )
 
 

@@ -36,8 +36,9 @@ def segments(data: LoggedData, max_gap: float = 60.0) -> list[slice]:
     return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b - a >= 10]
 
 
-def resample(t: np.ndarray, current: np.ndarray, voltage: np.ndarray, dt: float
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def resample(
+    t: np.ndarray, current: np.ndarray, voltage: np.ndarray, dt: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Uniform grid from t[0] every ``dt`` [s]: bin-averaged current (zero-order hold), interpolated voltage."""
     if dt <= 0:
         return t - t[0], current, voltage
@@ -78,9 +79,12 @@ def check_cell(data: LoggedData, cell: Cell) -> None:
     q = np.concatenate([[0.0], np.cumsum(data.current[:-1] * np.diff(data.t))]) / 3600.0
     swing = float(q.max() - q.min())
     if swing > 1.15 * cell.capacity():
-        warnings.warn(f"{where}: {swing:.3f} Ah passed in one direction, more than cell {cell.name!r}'s capacity "
-                      f"{cell.capacity():.3f} Ah: check the cell (or its capacity from an OCV test)", DataWarning,
-                      stacklevel=2)
+        warnings.warn(
+            f"{where}: {swing:.3f} Ah passed in one direction, more than cell {cell.name!r}'s capacity "
+            f"{cell.capacity():.3f} Ah: check the cell (or its capacity from an OCV test)",
+            DataWarning,
+            stacklevel=2,
+        )
 
 
 def experiments_from_data(
@@ -111,8 +115,10 @@ def experiments_from_data(
             )
         v0, ocv_lo, ocv_hi = float(data.voltage[k]), float(cell.ocv(0.0)), float(cell.ocv(1.0))
         if not ocv_lo - 0.05 <= v0 <= ocv_hi + 0.05:
-            raise InputError(f"{where}: the rest voltage {v0:.3f} V at sample {k} is outside cell {cell.name!r}'s "
-                             f"OCV range {ocv_lo:.3f}–{ocv_hi:.3f} V: data and cell do not match (or give --soc0)")
+            raise InputError(
+                f"{where}: the rest voltage {v0:.3f} V at sample {k} is outside cell {cell.name!r}'s "
+                f"OCV range {ocv_lo:.3f}–{ocv_hi:.3f} V: data and cell do not match (or give --soc0)"
+            )
         start = cell.soc_from_voltage(float(np.clip(v0, ocv_lo, ocv_hi)))
     start = float(start)
     ah = data.columns.get(NET_CAPACITY)

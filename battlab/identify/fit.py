@@ -163,19 +163,26 @@ class FitResult:
             "condition": st.condition,
             "not_identifiable": list(st.unidentifiable),
             "null_space": [dict(d) for d in st.null_space],
-            "correlation": _nan_to_none(st.correlation if st.correlation is not None
-                                        else statistics.correlation(st.covariance_identifiable)),
+            "correlation": _nan_to_none(
+                st.correlation if st.correlation is not None else statistics.correlation(st.covariance_identifiable)
+            ),
             "rmse_mV": self.rmse_mV,
             "rmse_before_mV": self.rmse_before_mV,
             "estimates": {
-                e.name: {"value": e.value, "ci95": list(e.ci95) if e.ci95 else None,
-                         "ci95_scaled": list(e.ci95_scaled) if e.ci95_scaled else None,
-                         "sigma": e.sigma, "at_bound": e.at_bound, "identifiable": e.identifiable,
-                         "set_identified": e.set_identified}
+                e.name: {
+                    "value": e.value,
+                    "ci95": list(e.ci95) if e.ci95 else None,
+                    "ci95_scaled": list(e.ci95_scaled) if e.ci95_scaled else None,
+                    "sigma": e.sigma,
+                    "at_bound": e.at_bound,
+                    "identifiable": e.identifiable,
+                    "set_identified": e.set_identified,
+                }
                 for e in st.estimates
             },
-            "invariants": {i.name: {"value": i.value, "ci95": list(i.ci95), "definition": i.definition}
-                           for i in st.invariants},
+            "invariants": {
+                i.name: {"value": i.value, "ci95": list(i.ci95), "definition": i.definition} for i in st.invariants
+            },
         }
 
 
@@ -188,8 +195,15 @@ def _nan_to_none(a: np.ndarray | None) -> list[list[float | None]] | None:
 class _Problem:
     """Residuals and Jacobian of eq. 41 for a set of experiments and fitted names, cached per θ̄."""
 
-    def __init__(self, fm: ForwardModel, experiments: Sequence[Experiment], names: Sequence[str],
-                 theta_full: np.ndarray, soc_span: float = 0.0, pool: ThreadPoolExecutor | None = None) -> None:
+    def __init__(
+        self,
+        fm: ForwardModel,
+        experiments: Sequence[Experiment],
+        names: Sequence[str],
+        theta_full: np.ndarray,
+        soc_span: float = 0.0,
+        pool: ThreadPoolExecutor | None = None,
+    ) -> None:
         self.fm = fm
         self.exps = list(experiments)
         self.names = tuple(names)
@@ -213,8 +227,11 @@ class _Problem:
         x = np.asarray(x, float)
         th = self.full(x[: len(self.names)])
         idx = range(len(self.exps))
-        parts = list(self.pool.map(self._one, idx, [th] * len(idx), [x] * len(idx))) if self.pool else [
-            self._one(i, th, x) for i in idx]
+        parts = (
+            list(self.pool.map(self._one, idx, [th] * len(idx), [x] * len(idx)))
+            if self.pool
+            else [self._one(i, th, x) for i in idx]
+        )
         rs, js, preds = (list(z) for z in zip(*parts, strict=True))
         self.n_sim += 1
         if len(self._cache) >= 2:
@@ -261,8 +278,9 @@ class _Problem:
 
 
 def _rmse(exps: Sequence[Experiment], preds: list[np.ndarray]) -> dict[str, float]:
-    return {e.name: float(1e3 * np.sqrt(np.mean((p - e.voltage)[e.mask] ** 2)))
-            for e, p in zip(exps, preds, strict=True)}
+    return {
+        e.name: float(1e3 * np.sqrt(np.mean((p - e.voltage)[e.mask] ** 2))) for e, p in zip(exps, preds, strict=True)
+    }
 
 
 def _abs_errors(exps: Sequence[Experiment], preds: list[np.ndarray]) -> np.ndarray:
@@ -359,9 +377,18 @@ def fit(
             pool.shutdown()
 
 
-def _fit(cell: Cell, experiments: Sequence[Experiment], names: list[str], opt: Options, fm: ForwardModel,
-         start: Cell, stage: int, soc_span: float, theta_full: np.ndarray, pool: ThreadPoolExecutor | None
-         ) -> FitResult:
+def _fit(
+    cell: Cell,
+    experiments: Sequence[Experiment],
+    names: list[str],
+    opt: Options,
+    fm: ForwardModel,
+    start: Cell,
+    stage: int,
+    soc_span: float,
+    theta_full: np.ndarray,
+    pool: ThreadPoolExecutor | None,
+) -> FitResult:
     prob = _Problem(fm, experiments, names, theta_full, soc_span, pool)
     x0 = np.r_[np.clip(theta_full[prob.idx], 1e-6, 1 - 1e-6), np.full(prob.n_nuis, 0.5)]
     t0 = time.perf_counter()
@@ -370,8 +397,16 @@ def _fit(cell: Cell, experiments: Sequence[Experiment], names: list[str], opt: O
     err = None
     try:
         sol = least_squares(
-            lambda x: prob.evaluate(x)[0], x0, jac=lambda x: prob.evaluate(x)[1], bounds=(0.0, 1.0),
-            method="trf", x_scale="jac", ftol=opt.ftol, xtol=opt.xtol, gtol=opt.gtol, max_nfev=opt.max_nfev,
+            lambda x: prob.evaluate(x)[0],
+            x0,
+            jac=lambda x: prob.evaluate(x)[1],
+            bounds=(0.0, 1.0),
+            method="trf",
+            x_scale="jac",
+            ftol=opt.ftol,
+            xtol=opt.xtol,
+            gtol=opt.gtol,
+            max_nfev=opt.max_nfev,
         )
         x, status, nfev, njev, opt_norm = sol.x, sol.status, sol.nfev, sol.njev, sol.optimality
     except (np.linalg.LinAlgError, ValueError) as exc:  # keep the best point seen
@@ -389,8 +424,12 @@ def _fit(cell: Cell, experiments: Sequence[Experiment], names: list[str], opt: O
     cost = 0.5 * float(r @ r)
     nfev += n_polish
     reasons = {
-        -1: "failed", 0: "maximum number of iterations reached", 1: "gradient tolerance (gtol) met",
-        2: "cost change below ftol", 3: "step below xtol", 4: "ftol and xtol both met",
+        -1: "failed",
+        0: "maximum number of iterations reached",
+        1: "gradient tolerance (gtol) met",
+        2: "cost change below ftol",
+        3: "step below xtol",
+        4: "ftol and xtol both met",
     }
     ended = f"{reasons.get(status, 'unknown')}" if err is None else err
     converged = err is None and (status > 0 or dec <= opt.predicted_tol)
@@ -413,11 +452,19 @@ def _fit(cell: Cell, experiments: Sequence[Experiment], names: list[str], opt: O
     st = statistics.compute(names, x, J, -r, at_bound, rcond=opt.rcond)
     th = prob.full(x)
     fitted = start.with_normalised(**{n: float(v) for n, v in zip(names, x, strict=True)})
-    conv = Convergence(bool(converged), reason, int(nfev), int(njev or 0), cost0, cost, float(opt_norm), seconds,
-                       dec)
+    conv = Convergence(bool(converged), reason, int(nfev), int(njev or 0), cost0, cost, float(opt_norm), seconds, dec)
     return FitResult(
-        fitted, names, th[prob.idx], st, conv, _rmse(experiments, preds), _rmse(experiments, preds0),
-        _abs_errors(experiments, preds0), _abs_errors(experiments, preds), tuple(e.name for e in experiments), stage,
+        fitted,
+        names,
+        th[prob.idx],
+        st,
+        conv,
+        _rmse(experiments, preds),
+        _rmse(experiments, preds0),
+        _abs_errors(experiments, preds0),
+        _abs_errors(experiments, preds),
+        tuple(e.name for e in experiments),
+        stage,
         extra,
     )
 

@@ -49,8 +49,11 @@ class ForwardModel:
         """θ̄ of ``cell``, which must differ from the base cell in dynamic values only."""
         if cell is not self.cell:
             fixed = set(self.cell.values) - set(parameters.NAMES)
-            diff = sorted(k for k in fixed | (set(cell.values) - set(parameters.NAMES))
-                          if repr(cell.get(k)) != repr(self.cell.get(k)))
+            diff = sorted(
+                k
+                for k in fixed | (set(cell.values) - set(parameters.NAMES))
+                if repr(cell.get(k)) != repr(self.cell.get(k))
+            )
             if diff:
                 raise InputError(
                     f"cell {cell.name!r} differs from the model's base cell {self.cell.name!r} in non-dynamic "
@@ -93,8 +96,16 @@ class ForwardModel:
         stepper = self._native()
         if stepper is None:
             lim = (float(self.cell["V_min"]) - self.v_margin, float(self.cell["V_max"]) + self.v_margin)
-            res = simulate(self.cell_at(theta_bar), profile, soc0=soc0, ambient=ambient,
-                           isothermal=self.isothermal, sensitivities=names, T0=T0, v_limits=lim)
+            res = simulate(
+                self.cell_at(theta_bar),
+                profile,
+                soc0=soc0,
+                ambient=ambient,
+                isothermal=self.isothermal,
+                sensitivities=names,
+                T0=T0,
+                v_limits=lim,
+            )
             return Output(res.voltage, res.sensitivities, res.ended_by, res.T_surface)
         from battlab.model import solver
 
@@ -104,7 +115,15 @@ class ForwardModel:
         sel = [parameters.NAMES.index(n) for n in names]
         t = profile.t - profile.t[0]
         traj = solver.run_native(
-            stepper, t, to_model_current(profile.current), float(ambient), theta_bar, float(soc0),
-            float(ambient if T0 is None else T0), sel, solver.Settings(), limits,
+            stepper,
+            t,
+            to_model_current(profile.current),
+            float(ambient),
+            theta_bar,
+            float(soc0),
+            float(ambient if T0 is None else T0),
+            sel,
+            solver.Settings(),
+            limits,
         )
         return Output(traj.voltage, traj.dV if names else None, traj.ended_by, traj.T2)

@@ -20,8 +20,13 @@ from battlab.noise import NoiseModel
 from protocols.profile import Profile
 
 
-def information(forward: ForwardModel, cell: Cell, profiles: Sequence[Profile], names: Sequence[str],
-                noise: NoiseModel | None = None) -> dict[object, np.ndarray]:
+def information(
+    forward: ForwardModel,
+    cell: Cell,
+    profiles: Sequence[Profile],
+    names: Sequence[str],
+    noise: NoiseModel | None = None,
+) -> dict[object, np.ndarray]:
     """Per profile id: F_i = S_iᵀ S_i / Q_i (p × p, θ̄ units) at ``cell``; profiles that stop early are left out."""
     th = forward.theta_of(cell)
     out = {}

@@ -98,8 +98,15 @@ class Statistics:
     def table(self) -> list[dict[str, object]]:
         """Rows for printing: name, value, ci95, σ, θ̄, at_bound."""
         return [
-            {"name": e.name, "value": e.value, "ci95": e.ci95, "sigma": e.sigma, "theta_bar": e.theta_bar,
-             "at_bound": e.at_bound, "identifiable": e.identifiable}
+            {
+                "name": e.name,
+                "value": e.value,
+                "ci95": e.ci95,
+                "sigma": e.sigma,
+                "theta_bar": e.theta_bar,
+                "at_bound": e.at_bound,
+                "identifiable": e.identifiable,
+            }
             for e in self.estimates
         ]
 
@@ -198,29 +205,47 @@ def compute(
     directions: tuple[dict[str, float], ...] = ()
     unident = tuple(nm for k, nm in enumerate(names) if not ok[k])
     if null.size:
-        directions = tuple({nm: float(c) for nm, c in zip(names, v, strict=True) if abs(c) > IDENT_TOL}
-                           for v in null)
-        combos = "; ".join(", ".join(f"{nm} ({c:+.2f})" for nm, c in sorted(dd.items(), key=lambda x: -abs(x[1]))
-                                     if abs(c) > 0.01) for dd in directions)
+        directions = tuple({nm: float(c) for nm, c in zip(names, v, strict=True) if abs(c) > IDENT_TOL} for v in null)
+        combos = "; ".join(
+            ", ".join(f"{nm} ({c:+.2f})" for nm, c in sorted(dd.items(), key=lambda x: -abs(x[1])) if abs(c) > 0.01)
+            for dd in directions
+        )
         notes.append(
             f"singular information matrix ({len(null)} null direction(s), condition {cond:.3g}): the combination(s) "
             f"{combos} are not identifiable from these data; no covariance intervals for {', '.join(unident)}; "
             "the other intervals use the covariance on the identifiable subspace"
         )
     if invs:
-        notes.append("R_s, D_s, k, R_f of electrode(s) " + ", ".join(electrodes) + " are moved by the model's exact "
-                     "scaling symmetry: their intervals are set-identified (orbits consistent with the invariants "
-                     + ", ".join(f"{i.name} = {i.value:.4g} [{i.ci95[0]:.4g}, {i.ci95[1]:.4g}]" for i in invs.values())
-                     + " and the bounds)")
+        notes.append(
+            "R_s, D_s, k, R_f of electrode(s) " + ", ".join(electrodes) + " are moved by the model's exact "
+            "scaling symmetry: their intervals are set-identified (orbits consistent with the invariants "
+            + ", ".join(f"{i.name} = {i.value:.4g} [{i.ci95[0]:.4g}, {i.ci95[1]:.4g}]" for i in invs.values())
+            + " and the bounds)"
+        )
     if any(bound):
-        notes.append("one-sided intervals for parameters at a bound: " + ", ".join(
-            f"{nm} ({b})" for nm, b in zip(names, bound, strict=True) if b
-        ))
+        notes.append(
+            "one-sided intervals for parameters at a bound: "
+            + ", ".join(f"{nm} ({b})" for nm, b in zip(names, bound, strict=True) if b)
+        )
     if dead:
         notes.insert(0, f"zero sensitivity to {', '.join(dead)}")
     singular = bool(null.size)
     return Statistics(
-        names, th, n, dof, tval, None if singular else cov, None if singular else cov * s2,
-        None if singular else corr, s2, cond, tuple(est), not singular, "; ".join(notes) or None,
-        unident, directions, cov, tuple(invs.values()),
+        names,
+        th,
+        n,
+        dof,
+        tval,
+        None if singular else cov,
+        None if singular else cov * s2,
+        None if singular else corr,
+        s2,
+        cond,
+        tuple(est),
+        not singular,
+        "; ".join(notes) or None,
+        unident,
+        directions,
+        cov,
+        tuple(invs.values()),
     )

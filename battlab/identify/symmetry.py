@@ -32,9 +32,7 @@ import numpy as np
 from battlab import parameters
 
 #: Exponent of λ for each parameter of an electrode's symmetry orbit.
-ORBITS: dict[str, dict[str, int]] = {
-    e: {f"R_s_{e}": 1, f"D_s_{e}": 2, f"k_{e}": 1, f"R_f_{e}": -1} for e in ("n", "p")
-}
+ORBITS: dict[str, dict[str, int]] = {e: {f"R_s_{e}": 1, f"D_s_{e}": 2, f"k_{e}": 1, f"R_f_{e}": -1} for e in ("n", "p")}
 
 #: Identifiable invariants per electrode: name → {parameter: exponent} (products of powers).
 INVARIANTS: dict[str, dict[str, dict[str, int]]] = {
@@ -62,8 +60,9 @@ def complete_electrodes(names: Sequence[str]) -> list[str]:
     return [e for e, orbit in ORBITS.items() if all(n in names for n in orbit)]
 
 
-def invariants(names: Sequence[str], theta_bar: np.ndarray, covariance: np.ndarray, t_value: float
-               ) -> dict[str, Invariant]:
+def invariants(
+    names: Sequence[str], theta_bar: np.ndarray, covariance: np.ndarray, t_value: float
+) -> dict[str, Invariant]:
     """The invariants of each complete electrode with their 95 % intervals (delta method in log space).
 
     ``covariance`` (p, p) in θ̄ must be valid for estimable functions (e.g. the pseudo-inverse of JᵀWJ); the

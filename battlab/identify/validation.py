@@ -19,12 +19,15 @@ from battlab.identify.forward import ForwardModel
 from protocols.profile import Profile
 
 
-def discharge_profiles(cell: Cell, rates: Sequence[float] = (0.5, 1.0), soc0: float = 1.0, depth: float = 0.9
-                       ) -> list[tuple[Profile, float]]:
+def discharge_profiles(
+    cell: Cell, rates: Sequence[float] = (0.5, 1.0), soc0: float = 1.0, depth: float = 0.9
+) -> list[tuple[Profile, float]]:
     """Constant-current validation discharges (Table 12): ``depth`` of capacity from ``soc0``, 1-s samples."""
     q, cap = float(cell["Q_nom"]), float(cell.capacity())
-    return [(Profile.constant(-c * q, depth * cap / q * 3600 / c, 1.0, id=f"{c:g}C discharge", kind="cc"), soc0)
-            for c in rates]
+    return [
+        (Profile.constant(-c * q, depth * cap / q * 3600 / c, 1.0, id=f"{c:g}C discharge", kind="cc"), soc0)
+        for c in rates
+    ]
 
 
 def cut_at_limit(forward: ForwardModel, truth: Cell, profile: Profile, soc0: float) -> Profile:
@@ -35,8 +38,13 @@ def cut_at_limit(forward: ForwardModel, truth: Cell, profile: Profile, soc0: flo
         return profile
     if n < 10 or out.ended_by.startswith("solver"):
         raise ValueError(f"validation profile {profile.id}: the true cell's simulation failed ({out.ended_by})")
-    return Profile(profile.t[:n], np.r_[profile.current[: n - 1], profile.current[n - 2]], id=profile.id,
-                   kind=profile.kind, soc0=soc0)
+    return Profile(
+        profile.t[:n],
+        np.r_[profile.current[: n - 1], profile.current[n - 2]],
+        id=profile.id,
+        kind=profile.kind,
+        soc0=soc0,
+    )
 
 
 def reference(e: Experiment) -> np.ndarray:
@@ -44,8 +52,9 @@ def reference(e: Experiment) -> np.ndarray:
     return e.truth if e.truth is not None else e.voltage
 
 
-def rmse_table(forward: ForwardModel, cells: Mapping[str, Cell], experiments: Sequence[Experiment]
-               ) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, np.ndarray]]]:
+def rmse_table(
+    forward: ForwardModel, cells: Mapping[str, Cell], experiments: Sequence[Experiment]
+) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, np.ndarray]]]:
     """RMSE [mV] per cell label and experiment, and the predictions (for figures)."""
     table: dict[str, dict[str, float]] = {}
     preds: dict[str, dict[str, np.ndarray]] = {}

@@ -21,8 +21,9 @@ from protocols.errors import InputError
 from protocols.profile import Profile
 
 
-def noise_free(forward: ForwardModel, truth: Cell, profile: Profile, soc0: float, *, ambient: float = 298.15
-               ) -> np.ndarray:
+def noise_free(
+    forward: ForwardModel, truth: Cell, profile: Profile, soc0: float, *, ambient: float = 298.15
+) -> np.ndarray:
     """The true voltage [V] of ``truth`` under ``profile``; a run that stops early is an error."""
     out = forward.run(forward.theta_of(truth), profile, soc0, ambient=ambient)
     if out.ended_by is not None:
@@ -54,6 +55,11 @@ def synthesize(
     if quantum > 0:
         y = np.round(y / quantum) * quantum
     return Experiment(
-        name or f"profile {profile.id}", profile, y, soc0, variance_of(profile, noise, quantum), ambient,
+        name or f"profile {profile.id}",
+        profile,
+        y,
+        soc0,
+        variance_of(profile, noise, quantum),
+        ambient,
         truth=v,
     )

@@ -89,8 +89,9 @@ def check_data(
             raise InputError(f"{where}: column {col!r} is NaN or infinite at {ranges(bad, t)}")
     for col, values in data.columns.items():
         if col not in REQUIRED and not np.isfinite(values).all():
-            warnings.warn(f"{where}: column {col!r} is NaN at {ranges(~np.isfinite(values), t)}", DataWarning,
-                          stacklevel=2)
+            warnings.warn(
+                f"{where}: column {col!r} is NaN at {ranges(~np.isfinite(values), t)}", DataWarning, stacklevel=2
+            )
     dt = np.diff(t)
     back = dt < 0
     if back.any():
@@ -103,7 +104,8 @@ def check_data(
     if dup.any():
         warnings.warn(
             f"{where}: {int(dup.sum())} repeated time stamp(s) at {ranges(dup, t)}; keeping the last sample of each",
-            DataWarning, stacklevel=2,
+            DataWarning,
+            stacklevel=2,
         )
         data = data.select(~dup)
         t, dt = data.t, np.diff(data.t)
@@ -114,7 +116,8 @@ def check_data(
             warnings.warn(
                 f"{where}: {int(gap.sum())} gap(s) in time longer than {max(gap_factor * typical, min_gap_s):.3g} s "
                 f"(largest {dt.max():.6g} s) after {ranges(np.r_[gap, False], t)}; the current is held over them",
-                DataWarning, stacklevel=2,
+                DataWarning,
+                stacklevel=2,
             )
     sign, why = detect_sign(t, data.current, data.voltage)
     if sign < 0:
@@ -124,8 +127,9 @@ def check_data(
                 f"{where}: the current's sign looks reversed ({why}; positive current at {ranges(charge, t)}): "
                 "BDF and battlab use positive = charge; flip the column (fix_sign=True, or --fix-sign)"
             )
-        warnings.warn(f"{where}: current sign reversed ({why}); flipped to positive = charge", DataWarning,
-                      stacklevel=2)
+        warnings.warn(
+            f"{where}: current sign reversed ({why}); flipped to positive = charge", DataWarning, stacklevel=2
+        )
         cols = dict(data.columns)
         cols[CURRENT] = -cols[CURRENT]
         data = LoggedData(data.name, cols, {**data.meta, "sign_flipped": True}, data.source)

@@ -106,7 +106,10 @@ class LogWriter:
         f.attrs["meta"] = _json(dict(meta))
         f.attrs["created"] = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
         ds = f.create_dataset(
-            "data", shape=(0, len(self.columns)), maxshape=(None, len(self.columns)), dtype="f8",
+            "data",
+            shape=(0, len(self.columns)),
+            maxshape=(None, len(self.columns)),
+            dtype="f8",
             chunks=(max(int(chunk_rows), 1), len(self.columns)),
         )
         ds.attrs["columns"] = _json(list(self.columns))
@@ -173,9 +176,7 @@ class LogWriter:
         self.close({"status": "error"} if exc[0] is not None else None)
 
 
-def open_log(
-    path: str | Path, columns: Sequence[str], meta: Mapping[str, Any], *, chunk_rows: int = 1024
-) -> LogWriter:
+def open_log(path: str | Path, columns: Sequence[str], meta: Mapping[str, Any], *, chunk_rows: int = 1024) -> LogWriter:
     """Create a run log at ``path`` with BDF ``columns`` (must include time, voltage, current) and ``meta``.
 
     An existing file is an error (logged data is never overwritten).

@@ -70,8 +70,16 @@ class Layout:
         out: dict[str, slice] = {}
         pos = 0
         for name, n in (
-            ("sn", self.n_sn), ("sp", self.n_sp), ("ce", m.n_x), ("T1", 1), ("T2", 1),
-            ("phis_n", m.n_n), ("phis_p", m.n_p), ("phie", m.n_x), ("i_n", m.n_n), ("i_p", m.n_p),
+            ("sn", self.n_sn),
+            ("sp", self.n_sp),
+            ("ce", m.n_x),
+            ("T1", 1),
+            ("T2", 1),
+            ("phis_n", m.n_n),
+            ("phis_p", m.n_p),
+            ("phie", m.n_x),
+            ("i_n", m.n_n),
+            ("i_p", m.n_p),
         ):
             out[name] = slice(pos, pos + n)
             pos += n
@@ -185,8 +193,10 @@ class DFN:
         # --- electrolyte transport (A3–A8, A11, A13–A16) ---
         tp = p["t_plus"]
         De = p["D_e_scale"] * cell.fn("D_e", ce, backend="casadi") * _arrhenius(float(cell["E_D_e"]), self.T_ref, T1)
-        kap = p["kappa_scale"] * cell.fn("kappa", ce, backend="casadi") * _arrhenius(
-            float(cell["E_kappa"]), self.T_ref, T1
+        kap = (
+            p["kappa_scale"]
+            * cell.fn("kappa", ce, backend="casadi")
+            * _arrhenius(float(cell["E_kappa"]), self.T_ref, T1)
         )
         tdf = 1.0 + p["dlnf_scale"] * cell.fn("dlnf", ce, backend="casadi")
         De_eff = De * tort_x
@@ -260,8 +270,18 @@ class DFN:
         f = ca.vertcat(f_s["n"], f_s["p"], dce, dT1, dT2)
         g = ca.vertcat(g_s["n"], g_s["p"], g_e, g_bv["n"], g_bv["p"])
         sto_surf = ca.vertcat(surf["n"], surf["p"])
-        return {"f": f, "g": g, "V": V, "T1": T1, "T2": T2, "Q": Q, "surf_n": surf["n"], "surf_p": surf["p"],
-                "sto_surf": sto_surf, "ce": ce}
+        return {
+            "f": f,
+            "g": g,
+            "V": V,
+            "T1": T1,
+            "T2": T2,
+            "Q": Q,
+            "surf_n": surf["n"],
+            "surf_p": surf["p"],
+            "sto_surf": sto_surf,
+            "ce": ce,
+        }
 
     def lithium(self, y: np.ndarray, theta_bar: np.ndarray) -> float:
         """Moles of lithium in solid + electrolyte at state y (for conservation checks)."""

@@ -67,8 +67,9 @@ class LiveCell:
                 self._I_dis, self._h_prev, self._h_allowed = saved[2:]
         raise AssertionError("unreachable")
 
-    def _advance_once(self, I_dis: float, dt: float, ambient: float, first: bool,
-                      dt_first: float | None) -> tuple[float, float, float]:
+    def _advance_once(
+        self, I_dis: float, dt: float, ambient: float, first: bool, dt_first: float | None
+    ) -> tuple[float, float, float]:
         s = self.settings
         restart = first or I_dis != self._I_dis or dt_first is not None
         hs: list[float] = [0.0] if first else []
@@ -92,16 +93,25 @@ class LiveCell:
         out = np.full((1, 5), np.nan)
         dummy = np.zeros((1, 1))
         lim = np.array([-np.inf, np.inf, np.inf])
-        args = (np.array(hs), np.array(ws), np.full(n, I_dis), np.full(n, ambient), out_idx, np.full(n, I_dis),
-                self._theta, np.zeros(0, dtype=np.int32))
+        args = (
+            np.array(hs),
+            np.array(ws),
+            np.full(n, I_dis),
+            np.full(n, ambient),
+            out_idx,
+            np.full(n, I_dis),
+            self._theta,
+            np.zeros(0, dtype=np.int32),
+        )
         y0, xp0 = self._y.copy(), self._xp.copy()
         done, code, _ = self._stepper.run(*args, self._y, self._xp, np.zeros(0), np.zeros(0), out, dummy, dummy, lim)
         if code == -2:  # a pivot vanished: new pivot order at this state, then retry from the start
             self._y, self._xp = y0, xp0
             u = np.array([max(hs[-1], 1e-3), 0.0, I_dis, ambient])
             self._stepper.analyse_at(self._y, self._y[: len(xp0)], self._xp, u, self._theta)
-            done, code, _ = self._stepper.run(*args, self._y, self._xp, np.zeros(0), np.zeros(0), out, dummy, dummy,
-                                              lim)
+            done, code, _ = self._stepper.run(
+                *args, self._y, self._xp, np.zeros(0), np.zeros(0), out, dummy, dummy, lim
+            )
         if code < 0:
             raise RuntimeError(f"cell model: step did not converge at t = {self.t + sum(hs[:done]):.3f} s")
         self._I_dis = I_dis

@@ -43,11 +43,28 @@ class NativeUnavailable(RuntimeError):
 
 class _Problem(ctypes.Structure):
     _fields_ = [
-        ("n", _INT), ("nx", _INT), ("nth", _INT), ("nslot", _INT),
-        ("prow", _PI), ("pcol", _PI), ("jac2slot", _PI), ("piv", _PI),
-        ("lptr", _PI), ("lrow", _PI), ("lslot", _PI), ("uptr", _PI), ("uslot", _PI), ("upd", _PI),
-        ("ucptr", _PI), ("ucrow", _PI), ("ucslot", _PI),
-        ("jth_colptr", _PI), ("jth_row", _PI), ("jac_nnz", _INT), ("jth_nnz", _INT), ("iT2", _INT),
+        ("n", _INT),
+        ("nx", _INT),
+        ("nth", _INT),
+        ("nslot", _INT),
+        ("prow", _PI),
+        ("pcol", _PI),
+        ("jac2slot", _PI),
+        ("piv", _PI),
+        ("lptr", _PI),
+        ("lrow", _PI),
+        ("lslot", _PI),
+        ("uptr", _PI),
+        ("uslot", _PI),
+        ("upd", _PI),
+        ("ucptr", _PI),
+        ("ucrow", _PI),
+        ("ucslot", _PI),
+        ("jth_colptr", _PI),
+        ("jth_row", _PI),
+        ("jac_nnz", _INT),
+        ("jth_nnz", _INT),
+        ("iT2", _INT),
     ]
 
 
@@ -129,8 +146,10 @@ def analyse(jac_sparsity: ca.Sparsity, values: np.ndarray) -> LUProgram:
     for i in range(n):
         for j in sorted(rows[i]):
             slot[(i, j)] = len(slot)
-    jac2slot = np.array([slot[(int(inv_prow[row[k]]), int(inv_pcol[j]))]
-                         for j in range(n) for k in range(colind[j], colind[j + 1])], dtype=np.int32)
+    jac2slot = np.array(
+        [slot[(int(inv_prow[row[k]]), int(inv_pcol[j]))] for j in range(n) for k in range(colind[j], colind[j + 1])],
+        dtype=np.int32,
+    )
     piv = np.array([slot[(k, k)] for k in range(n)], dtype=np.int32)
     lptr, lrow, lslot, uptr, uslot, upd = [0], [], [], [0], [], []
     ucptr, ucrow, ucslot = [0], [], []
@@ -147,10 +166,24 @@ def analyse(jac_sparsity: ca.Sparsity, values: np.ndarray) -> LUProgram:
         ucrow += above
         ucslot += [slot[(i, k)] for i in above]
         ucptr.append(len(ucrow))
-    arr = {name: np.ascontiguousarray(v, dtype=np.int32) for name, v in {
-        "prow": prow, "pcol": pcol, "jac2slot": jac2slot, "piv": piv, "lptr": lptr, "lrow": lrow,
-        "lslot": lslot, "uptr": uptr, "uslot": uslot, "upd": upd, "ucptr": ucptr, "ucrow": ucrow,
-        "ucslot": ucslot}.items()}
+    arr = {
+        name: np.ascontiguousarray(v, dtype=np.int32)
+        for name, v in {
+            "prow": prow,
+            "pcol": pcol,
+            "jac2slot": jac2slot,
+            "piv": piv,
+            "lptr": lptr,
+            "lrow": lrow,
+            "lslot": lslot,
+            "uptr": uptr,
+            "uslot": uslot,
+            "upd": upd,
+            "ucptr": ucptr,
+            "ucrow": ucrow,
+            "ucslot": ucslot,
+        }.items()
+    }
     return LUProgram(arr, len(slot))
 
 
@@ -206,10 +239,27 @@ class NativeStepper:
             return x.ctypes.data_as(_PI)
 
         return _Problem(
-            lay.ny, lay.nx, 18, self._program.nslot,
-            p(a["prow"]), p(a["pcol"]), p(a["jac2slot"]), p(a["piv"]), p(a["lptr"]), p(a["lrow"]),
-            p(a["lslot"]), p(a["uptr"]), p(a["uslot"]), p(a["upd"]), p(a["ucptr"]), p(a["ucrow"]),
-            p(a["ucslot"]), p(jth_colptr), p(jth_row), self.jac_sp.nnz(), self.jth_sp.nnz(),
+            lay.ny,
+            lay.nx,
+            18,
+            self._program.nslot,
+            p(a["prow"]),
+            p(a["pcol"]),
+            p(a["jac2slot"]),
+            p(a["piv"]),
+            p(a["lptr"]),
+            p(a["lrow"]),
+            p(a["lslot"]),
+            p(a["uptr"]),
+            p(a["uslot"]),
+            p(a["upd"]),
+            p(a["ucptr"]),
+            p(a["ucrow"]),
+            p(a["ucslot"]),
+            p(jth_colptr),
+            p(jth_row),
+            self.jac_sp.nnz(),
+            self.jth_sp.nnz(),
             lay.slices()["T2"].start,
         )
 
@@ -218,10 +268,25 @@ class NativeStepper:
         return self._problem is not None
 
     def run(
-        self, h: np.ndarray, w: np.ndarray, current: np.ndarray, T_amb: np.ndarray, out_idx: np.ndarray,
-        out_I: np.ndarray, th: np.ndarray, sel: np.ndarray, y: np.ndarray, xp: np.ndarray, S: np.ndarray,
-        Sp: np.ndarray, out: np.ndarray, outdV: np.ndarray, outdT2: np.ndarray, limits: np.ndarray,
-        tol: float = 1e-9, maxit: int = 20,
+        self,
+        h: np.ndarray,
+        w: np.ndarray,
+        current: np.ndarray,
+        T_amb: np.ndarray,
+        out_idx: np.ndarray,
+        out_I: np.ndarray,
+        th: np.ndarray,
+        sel: np.ndarray,
+        y: np.ndarray,
+        xp: np.ndarray,
+        S: np.ndarray,
+        Sp: np.ndarray,
+        out: np.ndarray,
+        outdV: np.ndarray,
+        outdT2: np.ndarray,
+        limits: np.ndarray,
+        tol: float = 1e-9,
+        maxit: int = 20,
     ) -> tuple[int, int, int]:
         """Advance in place; returns (steps done, code, Newton iterations); code 0 done, 1 a sample broke a
         limit, -1 Newton failed, -2 singular matrix."""
@@ -238,10 +303,30 @@ class NativeStepper:
         pd = lambda x: x.ctypes.data_as(_PD)  # noqa: E731
         problem = self._problem  # this run's pivot program, whatever another thread analyses meanwhile
         done = self.lib.bl_run(
-            ctypes.byref(problem), _INT(len(h)), pd(h), pd(w), pd(current), pd(T_amb),
-            out_idx.ctypes.data_as(_PI), pd(out_I), pd(th), sel.ctypes.data_as(_PI), _INT(ns),
-            ctypes.c_double(tol), _INT(maxit), pd(limits), pd(y), pd(xp), pd(S), pd(Sp), pd(Sy), pd(out), pd(outdV),
-            pd(outdT2), ctypes.byref(code), ctypes.byref(iters),
+            ctypes.byref(problem),
+            _INT(len(h)),
+            pd(h),
+            pd(w),
+            pd(current),
+            pd(T_amb),
+            out_idx.ctypes.data_as(_PI),
+            pd(out_I),
+            pd(th),
+            sel.ctypes.data_as(_PI),
+            _INT(ns),
+            ctypes.c_double(tol),
+            _INT(maxit),
+            pd(limits),
+            pd(y),
+            pd(xp),
+            pd(S),
+            pd(Sp),
+            pd(Sy),
+            pd(out),
+            pd(outdV),
+            pd(outdT2),
+            ctypes.byref(code),
+            ctypes.byref(iters),
         )
         return int(done), int(code.value), int(iters.value)
 

@@ -29,8 +29,7 @@ from battlab.model.mesh import Mesh
 
 NP = len(parameters.DYNAMIC)
 NEWTON_FAIL = 1e-6  #: a step whose scaled residual stays above this has failed
-_NEWTON = {"abstol": 1e-9, "abstolStep": 1e-14, "max_iter": 30, "error_on_fail": False,
-           "linear_solver": "csparse"}
+_NEWTON = {"abstol": 1e-9, "abstolStep": 1e-14, "max_iter": 30, "error_on_fail": False, "linear_solver": "csparse"}
 
 
 @dataclass(frozen=True)
@@ -48,6 +47,7 @@ class Settings:
     growth: float = 2.0
     refine_rate: float = 0.0
     chunk: int = 128
+
 
 @dataclass
 class Compiled:
@@ -131,8 +131,11 @@ def _compile(cell: Cell, cell_hash: str, mesh: Mesh, isothermal: bool, ns: int, 
         us = ca.SX.sym("u", 4)
         ths = ca.SX.sym("th", NP)
         Rs = res(ysym, xns, xps, us, ths)
-        jac = ca.Function("stepjac", [ysym, xns, xps, us, ths],
-                          [ca.jacobian(Rs, ysym), ca.jacobian(Rs, xns), ca.jacobian(Rs, xps), ca.jacobian(Rs, ths)])
+        jac = ca.Function(
+            "stepjac",
+            [ysym, xns, xps, us, ths],
+            [ca.jacobian(Rs, ysym), ca.jacobian(Rs, xns), ca.jacobian(Rs, xps), ca.jacobian(Rs, ths)],
+        )
         Jy, Jxn, Jxp, Jth = jac(y_new, XN, XP, U, TH)
         rhs = Jxn @ SN + Jxp @ SP + Jth @ E
         S_new = -ca.solve(Jy, rhs, "csparse")[:nx, :]
@@ -140,8 +143,7 @@ def _compile(cell: Cell, cell_hash: str, mesh: Mesh, isothermal: bool, ns: int, 
         ins = [Y, XP, SN, SP, U, TH, E]
         outs = [y_new, xp_new, S_new, sp_new, resid]
         # XN is the differential part of Y
-        body = ca.Function("body", [Y, XP, SN, SP, U, TH, E],
-                           ca.substitute(outs, [XN], [Y[:nx]]))
+        body = ca.Function("body", [Y, XP, SN, SP, U, TH, E], ca.substitute(outs, [XN], [Y[:nx]]))
         step = body.mapaccum("steps", chunk, [0, 1, 2, 3], [0, 1, 2, 3])
     else:
         body = ca.Function("body", ins, ca.substitute([*outs, resid], [XN], [Y[:nx]]))
@@ -159,9 +161,18 @@ def _compile(cell: Cell, cell_hash: str, mesh: Mesh, isothermal: bool, ns: int, 
         zs, xs, uas, ths2 = ca.SX.sym("z", nz), ca.SX.sym("x", nx), ca.SX.sym("ua", 2), ca.SX.sym("th", NP)
         gs = galg(zs, xs, uas, ths2)
         os_ = outf(zs, xs, uas, ths2)
-        ojac = ca.Function("outjac", [zs, xs, uas, ths2],
-                           [ca.jacobian(gs, zs), ca.jacobian(gs, xs), ca.jacobian(gs, ths2),
-                            ca.jacobian(os_, zs), ca.jacobian(os_, xs), ca.jacobian(os_, ths2)])
+        ojac = ca.Function(
+            "outjac",
+            [zs, xs, uas, ths2],
+            [
+                ca.jacobian(gs, zs),
+                ca.jacobian(gs, xs),
+                ca.jacobian(gs, ths2),
+                ca.jacobian(os_, zs),
+                ca.jacobian(os_, xs),
+                ca.jacobian(os_, ths2),
+            ],
+        )
         SX_ = ca.MX.sym("SX", nx, ns)
         E2 = ca.MX.sym("E", NP, ns)
         gz, gx, gth, oz, ox, oth = ojac(z_sol, X, UA, TH)
@@ -200,9 +211,7 @@ def next_step(remaining: float, h_allowed: float) -> float:
     return h_allowed
 
 
-def split_step(
-    h: np.ndarray, w: np.ndarray, cur: np.ndarray, pos: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def split_step(h: np.ndarray, w: np.ndarray, cur: np.ndarray, pos: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Replace the failed step ``pos`` by h/8, h/8, h/4, h/2 (restarting with backward Euler); the step after
     keeps BDF2 only if its step ratio stays ≤ 2.4 (zero-stable), else it restarts too."""
     hb = h[pos]
@@ -401,14 +410,24 @@ def run(
             sample_step = np.where(sample_step >= pos, sample_step + 3, sample_step)
     n_keep = last_sample + 1
     return Trajectory(
-        V[:n_keep], T1[:n_keep], T2[:n_keep], smin[:n_keep], smax[:n_keep],
-        None if dV is None else dV[:n_keep], None if dT2 is None else dT2[:n_keep],
-        n_keep, ended_by, len(h), y, time.perf_counter() - t_start,
+        V[:n_keep],
+        T1[:n_keep],
+        T2[:n_keep],
+        smin[:n_keep],
+        smax[:n_keep],
+        None if dV is None else dV[:n_keep],
+        None if dT2 is None else dT2[:n_keep],
+        n_keep,
+        ended_by,
+        len(h),
+        y,
+        time.perf_counter() - t_start,
     )
 
 
-def _check(k: int, V: np.ndarray, T2: np.ndarray, smin: np.ndarray, smax: np.ndarray,
-           limits: dict[str, float]) -> str | None:
+def _check(
+    k: int, V: np.ndarray, T2: np.ndarray, smin: np.ndarray, smax: np.ndarray, limits: dict[str, float]
+) -> str | None:
     """Why the run must stop at sample k, or None."""
     if not (np.isfinite(V[k]) and np.isfinite(T2[k])):
         return "solver: no converged solution (state left the model's domain)"
@@ -498,8 +517,22 @@ def run_native(
     while pos < h.size:
         sl_ = slice(pos, None)
         done, code, it = stepper.run(
-            h[sl_], w[sl_], cur[sl_], np.full(h.size - pos, T_amb), out_idx[sl_], out_I[sl_], th,
-            np.array(sel, dtype=np.int32), y, xp, S, Sp, out, outdV, outdT2, lim,
+            h[sl_],
+            w[sl_],
+            cur[sl_],
+            np.full(h.size - pos, T_amb),
+            out_idx[sl_],
+            out_I[sl_],
+            th,
+            np.array(sel, dtype=np.int32),
+            y,
+            xp,
+            S,
+            Sp,
+            out,
+            outdV,
+            outdT2,
+            lim,
         )
         n_iter += it
         pos += done
@@ -532,7 +565,17 @@ def run_native(
         n_keep -= 1  # the sample beyond the limit (or without a solution) is not part of the result
     V, T1, T2, smin, smax = (out[:n_keep, j] for j in range(5))
     return Trajectory(
-        V, T1, T2, smin, smax,
-        outdV[:n_keep] if ns else None, outdT2[:n_keep] if ns else None,
-        n_keep, ended_by, int(h.size - 1), y, time.perf_counter() - t_start, n_iter,
+        V,
+        T1,
+        T2,
+        smin,
+        smax,
+        outdV[:n_keep] if ns else None,
+        outdT2[:n_keep] if ns else None,
+        n_keep,
+        ended_by,
+        int(h.size - 1),
+        y,
+        time.perf_counter() - t_start,
+        n_iter,
     )

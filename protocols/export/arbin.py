@@ -156,11 +156,7 @@ def _charging(s: Step) -> bool:
 
 
 def _hold_step(n: int, h: Hold) -> _Step:
-    st = (
-        _Step(f"{n}-hold", "Rest")
-        if h.current == 0
-        else _Step(f"{n}-hold", "Current(A)", fmt_num(h.current, 6))
-    )
+    st = _Step(f"{n}-hold", "Rest") if h.current == 0 else _Step(f"{n}-hold", "Current(A)", fmt_num(h.current, 6))
     st.limits = [_limit(True, "PV_CHAN_Step_Time", ">=", fmt_num(h.duration, 3)), _LOG]
     return st
 
@@ -188,9 +184,7 @@ def _profile_steps(items: tuple[Item, ...], start: int) -> list[_Step]:
     return out
 
 
-def write(
-    protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: FormatRules = RULES
-) -> ExportResult:
+def write(protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: FormatRules = RULES) -> ExportResult:
     """Write ``<name>.sdu`` into ``out_dir``."""
     protocol.check()
     check_times(protocol, rules)
@@ -283,9 +277,7 @@ def read(path: str | Path) -> ReadBack:
         raise InputError(f"{path}: no [Schedule] section")
     n = int(glob["m_uStepNum"])
     steps = [sec[f"Schedule_Step{i}"] for i in range(n)]
-    limits = [
-        [sec[f"Schedule_Step{i}_Limit{j}"] for j in range(int(s["m_uLimitNum"]))] for i, s in enumerate(steps)
-    ]
+    limits = [[sec[f"Schedule_Step{i}_Limit{j}"] for j in range(int(s["m_uLimitNum"]))] for i, s in enumerate(steps)]
     by_label = {s["m_szLabel"]: i for i, s in enumerate(steps)}
     items: list[Canonical] = []
     tc = [0] * 5
@@ -318,9 +310,7 @@ def read(path: str | Path) -> ReadBack:
     vmin, vmax = (float(x) for x in glob["m_VoltageSafetyScope"].split("^"))
     imax = float(glob["m_CurrentSafetyScope"].split("^")[1])
     tmax = float(glob["m_AuxTempSafetyScope"].split("^")[1]) + 273.15
-    return ReadBack(
-        merge_holds(items), voltage_min=vmin, voltage_max=vmax, current_max=imax, temperature_max=tmax
-    )
+    return ReadBack(merge_holds(items), voltage_min=vmin, voltage_max=vmax, current_max=imax, temperature_max=tmax)
 
 
 def _read_step(path: Path, s: dict[str, str], lims: list[dict[str, str]]) -> Canonical:
@@ -331,9 +321,7 @@ def _read_step(path: Path, s: dict[str, str], lims: list[dict[str, str]]) -> Can
     elif ctrl == "Voltage(V)":
         m = re.match(r"\d+-cv (charge|discharge)\b", label)
         if m is None:
-            raise InputError(
-                f"{path}: CV step {label!r} does not name its direction ('<n>-cv charge|discharge')"
-            )
+            raise InputError(f"{path}: CV step {label!r} does not name its direction ('<n>-cv charge|discharge')")
         charging = m.group(1) == "charge"
     ends = []
     for li in lims:

@@ -98,11 +98,7 @@ ROWS = (
     "ctrl_Na",
     "ctrl_corr",
     "lim_nb",
-    *(
-        f"lim{j}_{f}"
-        for j in (1, 2, 3)
-        for f in ("type", "comp", "Q", "value", "value_unit", "action", "seq")
-    ),
+    *(f"lim{j}_{f}" for j in (1, 2, 3) for f in ("type", "comp", "Q", "value", "value_unit", "action", "seq")),
     "rec_nb",
     "rec1_type",
     "rec1_value",
@@ -172,9 +168,7 @@ def _blank(ns: int) -> dict[str, str]:
 def _set_limits(seq: dict[str, str], ends: list[tuple[str, str, str, str]]) -> None:
     seq["lim_nb"] = str(len(ends))
     for j, (typ, comp, value, unit) in enumerate(ends, start=1):
-        seq.update(
-            {f"lim{j}_type": typ, f"lim{j}_comp": comp, f"lim{j}_value": value, f"lim{j}_value_unit": unit}
-        )
+        seq.update({f"lim{j}_type": typ, f"lim{j}_comp": comp, f"lim{j}_value": value, f"lim{j}_value_unit": unit})
 
 
 def _limit(e: EndCondition) -> tuple[str, str, str, str]:
@@ -206,9 +200,7 @@ def _hold(ns: int, h: Hold) -> dict[str, str]:
     return seq
 
 
-def write(
-    protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: FormatRules = RULES
-) -> ExportResult:
+def write(protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: FormatRules = RULES) -> ExportResult:
     """Write ``<name>.mps`` into ``out_dir``."""
     protocol.check()
     check_times(protocol, rules)
@@ -216,9 +208,7 @@ def write(
     seqs: list[dict[str, str]] = []
     for k, s in enumerate(proto.steps, start=1):
         if len(s.ends) > MAX_LIMITS:
-            raise InputError(
-                f"{where(proto, k, s)}: Modulo Bat takes at most {MAX_LIMITS} limits per sequence"
-            )
+            raise InputError(f"{where(proto, k, s)}: Modulo Bat takes at most {MAX_LIMITS} limits per sequence")
         if isinstance(s, ProfileStep):
             for it in profile_plan(proto, k, s, rules):
                 if isinstance(it, Hold):
@@ -282,9 +272,7 @@ def write(
     rows = [key.ljust(WIDTH) + "".join(seq[key].ljust(WIDTH) for seq in seqs) for key in ROWS]
     path = Path(out_dir) / f"{safe_name(name or protocol.name)}.mps"
     path.write_bytes(("\r\n".join([*header, *rows]) + "\r\n").encode("cp1252"))
-    notes = (
-        f"BioLogic: the temperature limit {lim.temperature_max - 273.15:g} degC is not in the settings file",
-    )
+    notes = (f"BioLogic: the temperature limit {lim.temperature_max - 273.15:g} degC is not in the settings file",)
     return ExportResult((path,), notes)
 
 
@@ -354,9 +342,7 @@ def _read_seq(path: Path, s: dict[str, str]) -> Canonical:
         elif typ == "|Q|":
             ends.append(EndCondition(Quantity.CAPACITY, Comparison.GE, value))
         else:
-            raise InputError(
-                f"{path}: sequence {s['Ns']}: limit type {typ!r} is not one this exporter writes"
-            )
+            raise InputError(f"{path}: sequence {s['Ns']}: limit type {typ!r} is not one this exporter writes")
     sign = 1.0 if s["charge/discharge"] == "Charge" else -1.0
     ctrl = s["ctrl_type"]
     if ctrl == "Rest":

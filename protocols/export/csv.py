@@ -27,9 +27,7 @@ RULES = FormatRules(
 )
 
 
-def write(
-    protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: FormatRules = RULES
-) -> ExportResult:
+def write(protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: FormatRules = RULES) -> ExportResult:
     """Write ``<name>.csv``."""
     check_times(protocol, rules)
     items = canonical(protocol)

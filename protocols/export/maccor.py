@@ -192,9 +192,7 @@ def _mwf_rows(holds: list[Hold], protocol: Protocol) -> list[str]:
     return rows
 
 
-def write(
-    protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: FormatRules = RULES
-) -> ExportResult:
+def write(protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: FormatRules = RULES) -> ExportResult:
     """Write the procedure and its waveform files into ``out_dir``."""
     protocol.check()
     check_times(protocol, rules)
@@ -204,12 +202,8 @@ def write(
     end_no = n_steps + 1
     lim = protocol.limits
     safety = [
-        _end_entry(
-            _END_TYPES[Quantity.VOLTAGE], _OPERS[Comparison.GE], end_no, fmt_num(lim.voltage_max, 6), True
-        ),
-        _end_entry(
-            _END_TYPES[Quantity.VOLTAGE], _OPERS[Comparison.LE], end_no, fmt_num(lim.voltage_min, 6), True
-        ),
+        _end_entry(_END_TYPES[Quantity.VOLTAGE], _OPERS[Comparison.GE], end_no, fmt_num(lim.voltage_max, 6), True),
+        _end_entry(_END_TYPES[Quantity.VOLTAGE], _OPERS[Comparison.LE], end_no, fmt_num(lim.voltage_min, 6), True),
     ]
     lines: list[str] = []
     waveforms: list[tuple[Path, list[str]]] = []
@@ -227,9 +221,7 @@ def write(
         elif isinstance(s, ConstantVoltage):
             typ = _TYPES["charge" if s.direction is Direction.CHARGE else "discharge"]
             clamp = [f"        <Current>{fmt_num(lim.current_max, 6)}</Current>"]
-            lines += _test_step(
-                typ, _MODES["voltage"], fmt_num(s.voltage, 6), limits=clamp, ends=ends, note=s.label
-            )
+            lines += _test_step(typ, _MODES["voltage"], fmt_num(s.voltage, 6), limits=clamp, ends=ends, note=s.label)
         elif isinstance(s, ProfileStep):
             holds = expand(profile_plan(protocol, k, s, rules))
             check_step_count(protocol, len(holds), rules, "waveform segments")

@@ -59,9 +59,7 @@ Item = Hold | Repeat
 Canonical = Hold | Rest | ConstantCurrent | ConstantVoltage | CCCV
 
 
-def compress(
-    durations: np.ndarray, currents: np.ndarray, *, max_period: int | None = None
-) -> tuple[Item, ...]:
+def compress(durations: np.ndarray, currents: np.ndarray, *, max_period: int | None = None) -> tuple[Item, ...]:
     """Cut a run of holds into holds and repeats (greedy, left to right, exact equality).
 
     At each position the period p (at most ``max_period`` holds, default half the run) whose back-to-back
@@ -242,10 +240,7 @@ def difference(
         if isinstance(x, Hold):
             assert isinstance(y, Hold)
             if not _close(x.duration, y.duration, time_tol) or not _close(x.current, y.current, current_tol):
-                return (
-                    f"item {k}: hold {x.duration:g} s at {x.current:g} A "
-                    f"vs {y.duration:g} s at {y.current:g} A"
-                )
+                return f"item {k}: hold {x.duration:g} s at {x.current:g} A vs {y.duration:g} s at {y.current:g} A"
             continue
         for name in ("current", "voltage"):
             u, v = getattr(x, name, None), getattr(y, name, None)

@@ -89,9 +89,7 @@ def drive_cycle_array(holds: list[Hold]) -> np.ndarray:
     return np.array(rows)
 
 
-def write(
-    protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: FormatRules = RULES
-) -> ExportResult:
+def write(protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: FormatRules = RULES) -> ExportResult:
     """Write ``<name>.py`` and one ``<name>_step<k>.csv`` per profile step into ``out_dir``."""
     protocol.check()
     check_times(protocol, rules)
@@ -231,9 +229,7 @@ def read(path: str | Path) -> ReadBack:
             tname = type(term).__name__
             if tname == "VoltageTermination":
                 ends.append(
-                    EndCondition(
-                        Quantity.VOLTAGE, Comparison.GE if term.operator == ">" else Comparison.LE, term.value
-                    )
+                    EndCondition(Quantity.VOLTAGE, Comparison.GE if term.operator == ">" else Comparison.LE, term.value)
                 )
             elif tname == "CurrentTermination":
                 ends.append(EndCondition(Quantity.CURRENT, Comparison.LE, term.value))
@@ -254,10 +250,6 @@ def read(path: str | Path) -> ReadBack:
         else:
             raise InputError(f"{path}: PyBaMM step {kind} is not one this exporter writes")
         d = time_only(step)
-        items.append(
-            Hold(d, step.current if isinstance(step, ConstantCurrent) else 0.0) if d is not None else step
-        )
+        items.append(Hold(d, step.current if isinstance(step, ConstantCurrent) else 0.0) if d is not None else step)
     s = module.SAFETY
-    return ReadBack(
-        merge_holds(items), s["voltage_min"], s["voltage_max"], s["current_max"], s["temperature_max"]
-    )
+    return ReadBack(merge_holds(items), s["voltage_min"], s["voltage_max"], s["current_max"], s["temperature_max"])

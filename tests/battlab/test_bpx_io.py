@@ -27,9 +27,7 @@ FILES = [
 ]
 NMC = DATA / FILES[0]
 HYST = DATA / FILES[2]
-needs_data = pytest.mark.skipif(
-    not NMC.is_file(), reason=f"BPX examples not found in {DATA} (set BATTLAB_DATA)"
-)
+needs_data = pytest.mark.skipif(not NMC.is_file(), reason=f"BPX examples not found in {DATA} (set BATTLAB_DATA)")
 
 STO = np.linspace(0.0, 1.0, 101)
 CE = np.linspace(1.0, 4000.0, 101)
@@ -159,10 +157,7 @@ def test_export_contents_and_extra_metadata(tmp_path: Path) -> None:
     obj = _load(out)
     par = obj["Parameterisation"]
     user = par["User-defined"]
-    assert (
-        user["confidence_intervals: D_s_n [0]"] == 2.4e-14
-        and user["confidence_intervals: R_s_n [1]"] == 2.05e-5
-    )
+    assert user["confidence_intervals: D_s_n [0]"] == 2.4e-14 and user["confidence_intervals: R_s_n [1]"] == 2.05e-5
     assert user["fit_report: converged"] == 1 and user["fit_report: rmse_mV: US06"] == 12.5
     assert "fit_report: note: cumulative, 4 groups" in obj["Header"]["Description"]
     assert all(not isinstance(v, str) or k.startswith(EXT) for k, v in user.items())
@@ -205,9 +200,7 @@ def test_diffusivity_function_of_stoichiometry(tmp_path: Path) -> None:
     pos["Diffusivity [m2.s-1]"] = {"x": [1.0, 0.0, 0.5], "y": [1e-14, 4e-14, 2e-14]}  # unsorted, as allowed
     back = read_bpx(_write(tmp_path, obj))
     assert float(back["D_s_n"]) == pytest.approx(3e-14 * math.exp(-1.0))
-    np.testing.assert_allclose(
-        float(back["D_s_n"]) * back.fn("D_s_n_shape", STO), 3e-14 * np.exp(-2 * STO), rtol=1e-12
-    )
+    np.testing.assert_allclose(float(back["D_s_n"]) * back.fn("D_s_n_shape", STO), 3e-14 * np.exp(-2 * STO), rtol=1e-12)
     assert float(back["D_s_p"]) == pytest.approx(2e-14)
     assert back.fn("D_s_p_shape", 0.25) == pytest.approx(1.5)
     again = read_bpx(write_bpx(back, tmp_path / "b.json"))

@@ -55,8 +55,9 @@ def test_bad_input_is_one_line(tmp_path) -> None:
     t = np.arange(10.0)
     v = np.full(10, 3.7)
     v[4] = np.nan
-    np.savetxt(p, np.column_stack([t, v, np.zeros(10)]), delimiter=",", header=f"{TIME},{VOLTAGE},{CURRENT}",
-               comments="")
+    np.savetxt(
+        p, np.column_stack([t, v, np.zeros(10)]), delimiter=",", header=f"{TIME},{VOLTAGE},{CURRENT}", comments=""
+    )
     r = CliRunner().invoke(main, ["fit", str(p), "--cell", "nca18650", "-o", str(tmp_path / "c.json")])
     assert r.exit_code == 2
     assert "Voltage / V" in r.output and "sample 4" in r.output and "Traceback" not in r.output
@@ -72,10 +73,16 @@ def test_fit_consumes_a_design_plan_summary(tmp_path) -> None:
     lib = Library.build()
     plan = tmp_path / "plan.toml"
     plan.write_text(tomli_w.dumps(concatenate([lib[19], lib[37]], name="plan").protocol.to_dict()))
-    (tmp_path / "summary.json").write_text(json.dumps({"groups": [
-        {"parameters": ["R_s_n"], "selected": ["p19"], "logdet": 1.0},
-        {"parameters": ["R_s_n", "R_s_p"], "selected": ["p37"], "logdet": 2.0},
-    ]}))
+    (tmp_path / "summary.json").write_text(
+        json.dumps(
+            {
+                "groups": [
+                    {"parameters": ["R_s_n"], "selected": ["p19"], "logdet": 1.0},
+                    {"parameters": ["R_s_n", "R_s_p"], "selected": ["p37"], "logdet": 2.0},
+                ]
+            }
+        )
+    )
     (tmp_path / "fit").mkdir()
     out = tmp_path / "fit" / "fitted.json"
     r = CliRunner().invoke(main, ["fit", a, b, "--cell", "nca18650", "--plan", str(plan), "-o", str(out)])
@@ -93,17 +100,20 @@ def test_data_from_another_cell_is_one_line(tmp_path) -> None:
     i = np.where(t > 10, -1.0, 0.0)
     data = LoggedData("lfp", {TIME: t, VOLTAGE: v - 1.2, CURRENT: i}, {})  # 2.1-1.8 V: far below 2.5 V
     p = write_bdf_csv(data, tmp_path / "lfp.bdf.csv")
-    r = CliRunner().invoke(main, ["fit", str(p), "--cell", "nca18650", "--params", "R_s_n", "-o",
-                                  str(tmp_path / "c.json")])
+    r = CliRunner().invoke(
+        main, ["fit", str(p), "--cell", "nca18650", "--params", "R_s_n", "-o", str(tmp_path / "c.json")]
+    )
     assert r.exit_code == 2 and "Traceback" not in r.output
     assert "leaves cell 'nca18650'" in r.output and "samples 0–599" in r.output and "do not match" in r.output
     data = LoggedData("hv", {TIME: t, VOLTAGE: v + 1.02, CURRENT: i}, {})  # rests at 4.32 V, above OCV(100 %)
     p = write_bdf_csv(data, tmp_path / "hv.bdf.csv")
-    r = CliRunner().invoke(main, ["fit", str(p), "--cell", "nca18650", "--params", "R_s_n", "-o",
-                                  str(tmp_path / "c.json")])
+    r = CliRunner().invoke(
+        main, ["fit", str(p), "--cell", "nca18650", "--params", "R_s_n", "-o", str(tmp_path / "c.json")]
+    )
     assert r.exit_code == 2 and "rest voltage 4.320 V at sample 0 is outside" in r.output, r.output
     data = LoggedData("lfp", {TIME: t, VOLTAGE: v, CURRENT: i}, {})  # fits nothing like the model: says so
     p = write_bdf_csv(data, tmp_path / "lfp3.bdf.csv")
-    r = CliRunner().invoke(main, ["fit", str(p), "--cell", "nca18650", "--params", "R_s_n", "-o",
-                                  str(tmp_path / "c.json")])
+    r = CliRunner().invoke(
+        main, ["fit", str(p), "--cell", "nca18650", "--params", "R_s_n", "-o", str(tmp_path / "c.json")]
+    )
     assert r.exit_code == 0 and "model error" in r.output, r.output

@@ -20,15 +20,21 @@ from battlab.cli import main
 from protocols import Profile
 
 ONE_C = 2.7
-BASE_COLUMNS = ["Test Time / s", "Voltage / V", "Current / A", "Ambient Temperature / degC",
-                "Surface Temperature T1 / degC"]
+BASE_COLUMNS = [
+    "Test Time / s",
+    "Voltage / V",
+    "Current / A",
+    "Ambient Temperature / degC",
+    "Surface Temperature T1 / degC",
+]
 
 
 @pytest.fixture(scope="module")
 def profile() -> Profile:
     """Charge and discharge pulses (both signs in the file), 1 s samples, 120 s."""
-    return Profile.from_segments(np.array([10.0, 30.0, 20.0, 30.0, 30.0]),
-                                 np.array([0.0, 2.0 * ONE_C, 0.0, -1.5 * ONE_C, 0.0]))
+    return Profile.from_segments(
+        np.array([10.0, 30.0, 20.0, 30.0, 30.0]), np.array([0.0, 2.0 * ONE_C, 0.0, -1.5 * ONE_C, 0.0])
+    )
 
 
 @pytest.fixture
@@ -63,8 +69,7 @@ def check_against_api(cols: dict[str, np.ndarray], res: battlab.Result, ambient_
     np.testing.assert_allclose(cols["Ambient Temperature / degC"], ambient_degC, atol=1e-9)
     for j, name in enumerate(res.parameters):
         np.testing.assert_allclose(cols[f"dV/d{name} / V"], res.sensitivities[:, j], rtol=1e-9, atol=1e-13)
-        np.testing.assert_allclose(cols[f"dT_surface/d{name} / K"], res.sensitivities_T[:, j], rtol=1e-9,
-                                   atol=1e-13)
+        np.testing.assert_allclose(cols[f"dT_surface/d{name} / K"], res.sensitivities_T[:, j], rtol=1e-9, atol=1e-13)
 
 
 # --- outputs ------------------------------------------------------------------------------------------------------
@@ -85,8 +90,9 @@ def test_bdf_csv_matches_the_api(nca18650: Cell, profile: Profile, profile_csv: 
 
 def test_hdf5_matches_the_api(nca18650: Cell, profile: Profile, profile_csv: Path, tmp_path: Path) -> None:
     out = tmp_path / "out.h5"
-    result = invoke("simulate", "nca18650", str(profile_csv), "--soc0", "0.5", "--sens", "R_s_n,k_p",
-                    "--isothermal", "-o", str(out))
+    result = invoke(
+        "simulate", "nca18650", str(profile_csv), "--soc0", "0.5", "--sens", "R_s_n,k_p", "--isothermal", "-o", str(out)
+    )
     assert result.exit_code == 0, result.output
     cols, meta = read_h5(out)
     assert set(BASE_COLUMNS) <= set(cols)
@@ -98,8 +104,9 @@ def test_hdf5_matches_the_api(nca18650: Cell, profile: Profile, profile_csv: Pat
 
 def test_all_sensitivities_and_ambient(nca18650: Cell, profile: Profile, profile_csv: Path, tmp_path: Path) -> None:
     out = tmp_path / "all.h5"
-    result = invoke("simulate", "nca18650", str(profile_csv), "--soc0", "0.4", "--sens", "all", "--ambient", "10",
-                    "-o", str(out))
+    result = invoke(
+        "simulate", "nca18650", str(profile_csv), "--soc0", "0.4", "--sens", "all", "--ambient", "10", "-o", str(out)
+    )
     assert result.exit_code == 0, result.output
     cols, _ = read_h5(out)
     assert [c for c in cols if c.startswith("dV/d")] and all(f"dV/d{n} / V" in cols for n in parameters.NAMES)
@@ -123,8 +130,12 @@ def test_the_installed_command_runs(nca18650: Cell, profile: Profile, profile_cs
     exe = shutil.which("battlab")
     assert exe is not None, "the battlab command is not installed (pip install -e .)"
     out = tmp_path / "sub.bdf.csv"
-    proc = subprocess.run([exe, "simulate", "nca18650", str(profile_csv), "--soc0", "0.5", "--sens", "R_s_n",
-                           "-o", str(out)], capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [exe, "simulate", "nca18650", str(profile_csv), "--soc0", "0.5", "--sens", "R_s_n", "-o", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr
     table = pd.read_csv(out)
@@ -160,8 +171,14 @@ def bad_files(profile_csv: Path, tmp_path: Path, nmc_bpx: Path) -> dict[str, str
     nan.write_text("Test Time / s,Current / A\n0,1\n1,nan\n2,0\n")
     nocol = tmp_path / "nocol.csv"
     nocol.write_text("Test Time / s,Amps\n0,1\n1,1\n")
-    return {"csv": str(profile_csv), "missing": str(tmp_path / "nope.csv"), "nan": str(nan), "nocol": str(nocol),
-            "bpx": str(bad_bpx(tmp_path / "bad_cell.json", nmc_bpx)), "out_txt": str(tmp_path / "out.txt")}
+    return {
+        "csv": str(profile_csv),
+        "missing": str(tmp_path / "nope.csv"),
+        "nan": str(nan),
+        "nocol": str(nocol),
+        "bpx": str(bad_bpx(tmp_path / "bad_cell.json", nmc_bpx)),
+        "out_txt": str(tmp_path / "out.txt"),
+    }
 
 
 def assert_one_line_error(code: int, stdout: str, stderr: str, fragment: str) -> None:
@@ -184,8 +201,9 @@ def test_bad_input_is_one_line_and_exit_2(label: str, bad_files: dict[str, str],
     assert not (tmp_path / "out.bdf.csv").exists()
 
 
-@pytest.mark.parametrize("args", [["nca18650", "{csv}", "--soc0", "half"], ["nca18650"]],
-                         ids=["soc0 text", "no profile"])
+@pytest.mark.parametrize(
+    "args", [["nca18650", "{csv}", "--soc0", "half"], ["nca18650"]], ids=["soc0 text", "no profile"]
+)
 def test_usage_errors_are_one_line(args: list[str], bad_files: dict[str, str], tmp_path: Path) -> None:
     args = [a.format(**bad_files) for a in args] + ["-o", str(tmp_path / "out.bdf.csv")]
     result = CliRunner().invoke(main, ["simulate", *args])
@@ -195,6 +213,10 @@ def test_usage_errors_are_one_line(args: list[str], bad_files: dict[str, str], t
 def test_bad_input_through_the_installed_command(bad_files: dict[str, str], tmp_path: Path) -> None:
     exe = shutil.which("battlab")
     assert exe is not None
-    proc = subprocess.run([exe, "simulate", "nca18650", bad_files["nan"], "-o", str(tmp_path / "x.h5")],
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [exe, "simulate", "nca18650", bad_files["nan"], "-o", str(tmp_path / "x.h5")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert_one_line_error(proc.returncode, proc.stdout, proc.stderr, "nan.csv")

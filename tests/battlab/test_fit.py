@@ -95,8 +95,10 @@ def test_groupwise_fit_is_cumulative(setup) -> None:
 def test_start_soc_nuisance_is_fitted_and_marginalised(setup) -> None:
     cell, truth, fm, profs, clean = setup
     exps = [synthesize(fm, truth, p, p.soc0, seed=11 + k, clean=clean[p.id]) for k, p in enumerate(profs)]
-    off = [F.Experiment(e.name, e.profile, e.voltage, e.soc0 + d, e.variance, truth=e.truth)
-           for e, d in zip(exps, (0.02, -0.015), strict=True)]  # start SOC guessed wrong
+    off = [
+        F.Experiment(e.name, e.profile, e.voltage, e.soc0 + d, e.variance, truth=e.truth)
+        for e, d in zip(exps, (0.02, -0.015), strict=True)
+    ]  # start SOC guessed wrong
     res = F.fit(cell, off, NAMES, forward=fm, soc_span=0.05)
     socs = res.extra["soc0"]
     for e in exps:
@@ -112,8 +114,7 @@ def test_interval_coverage_over_seeds(setup) -> None:
     cell, truth, fm, profs, clean = setup
     covered = []
     for seed in range(20):
-        exps = [synthesize(fm, truth, p, p.soc0, seed=1000 * seed + k, clean=clean[p.id])
-                for k, p in enumerate(profs)]
+        exps = [synthesize(fm, truth, p, p.soc0, seed=1000 * seed + k, clean=clean[p.id]) for k, p in enumerate(profs)]
         res = F.fit(cell, exps, NAMES, forward=fm)
         covered += [res.statistics[n].covers(P.SPECS[n].truth) for n in NAMES]
     assert 0.90 <= np.mean(covered) <= 0.99, np.mean(covered)
@@ -131,11 +132,16 @@ def test_full_problem_groupwise_recovery_from_nominal() -> None:
     fm = ForwardModel(nominal)
     lib = Library.build()
     chosen = [(721, 109), (541, 505), (37, 1), (397,)]  # bench_fit.py --quick's stand-in selection
-    stages = [F.Stage(g, tuple(synthesize(fm, truth, lib[i], lib[i].soc0, seed=i) for i in ids))
-              for g, ids in zip(F.TABLE9_GROUPS, chosen, strict=True)]
+    stages = [
+        F.Stage(g, tuple(synthesize(fm, truth, lib[i], lib[i].soc0, seed=i) for i in ids))
+        for g, ids in zip(F.TABLE9_GROUPS, chosen, strict=True)
+    ]
     last = F.fit_groupwise(nominal, stages, forward=fm)[-1]
-    interior = [e for e in last.statistics.estimates if P.SPECS[e.name].truth not in
-                (P.SPECS[e.name].lower, P.SPECS[e.name].upper)]
+    interior = [
+        e
+        for e in last.statistics.estimates
+        if P.SPECS[e.name].truth not in (P.SPECS[e.name].lower, P.SPECS[e.name].upper)
+    ]
     assert len(interior) == 12
     covered = [e.name for e in interior if e.ci95 is not None and e.covers(P.SPECS[e.name].truth)]
     assert len(covered) >= 10, (covered, last.statistics.reason)

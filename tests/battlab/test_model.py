@@ -53,8 +53,9 @@ def relative_error(exact: np.ndarray, approx: np.ndarray) -> float:
     return float(np.linalg.norm(approx - exact) / np.linalg.norm(exact))
 
 
-def fd_errors(cell: Cell, prof: Profile, soc0: float, names: tuple[str, ...],
-              temperature: tuple[str, ...] = ()) -> dict[str, float]:
+def fd_errors(
+    cell: Cell, prof: Profile, soc0: float, names: tuple[str, ...], temperature: tuple[str, ...] = ()
+) -> dict[str, float]:
     """Relative 2-norm errors of dV/dθ̄ (and dT_surface/dθ̄ for ``temperature``) against central differences
     on the same time grid, keyed ``"V name"``/``"T name"``."""
     res = battlab.simulate(cell, prof, soc0=soc0, sensitivities=list(names))
@@ -131,8 +132,12 @@ def electrolyte_moles(model: DFN, y: np.ndarray, cell: Cell) -> float:
     m, ce = model.mesh, y[model.layout.slices()["ce"]] * C_SCALE
     total, start = 0.0, 0
     for region, n in (("n", m.n_n), ("s", m.n_s), ("p", m.n_p)):
-        total += float(np.sum(ce[start : start + n])) * float(cell[f"L_{region}"]) / n * float(cell["A"]) * float(
-            cell[f"eps_e_{region}"]
+        total += (
+            float(np.sum(ce[start : start + n]))
+            * float(cell[f"L_{region}"])
+            / n
+            * float(cell["A"])
+            * float(cell[f"eps_e_{region}"])
         )
         start += n
     return total
@@ -240,8 +245,9 @@ def test_hotter_ambient_gives_a_smaller_diffusion_overpotential(nca18650: Cell, 
 
     def loss(cell: Cell, ambient: float) -> float:
         fast = battlab.simulate(cell, prof, soc0=0.5, ambient=ambient, isothermal=True)
-        slow = battlab.simulate(cell.with_values(**{name: 0.5 * float(cell[name])}), prof, soc0=0.5,
-                                ambient=ambient, isothermal=True)
+        slow = battlab.simulate(
+            cell.with_values(**{name: 0.5 * float(cell[name])}), prof, soc0=0.5, ambient=ambient, isothermal=True
+        )
         return float(fast.voltage[-1] - slow.voltage[-1])
 
     cold, ref, hot = (loss(nca18650, T) for T in (283.15, 298.15, 313.15))

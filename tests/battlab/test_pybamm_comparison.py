@@ -58,8 +58,9 @@ def run_pybamm(path: Path, prof: Profile, soc0: float) -> tuple[np.ndarray, np.n
         warnings.simplefilter("ignore")
         pv = pybamm.ParameterValues.create_from_bpx(str(path), target_soc=soc0)
     pv["Current function [A]"] = pybamm_current(prof)
-    sim = pybamm.Simulation(pybamm.lithium_ion.DFN(), parameter_values=pv, var_pts=FINE,
-                            solver=pybamm.IDAKLUSolver(rtol=1e-8, atol=1e-10))
+    sim = pybamm.Simulation(
+        pybamm.lithium_ion.DFN(), parameter_values=pv, var_pts=FINE, solver=pybamm.IDAKLUSolver(rtol=1e-8, atol=1e-10)
+    )
     t = prof.t - prof.t[0]
     query = np.concatenate([[0.0], t[1:-1] + RIGHT, [t[-1]]])
     sol = sim.solve([0.0, float(t[-1])], t_interp=query)
@@ -87,8 +88,9 @@ def test_1c_discharge_to_cut_off(nmc_bpx: Path) -> None:
     prof = Profile.constant(-q, 4200.0, 1.0)
     t_ref, v_ref, temps = run_pybamm(nmc_bpx, prof, 1.0)
     assert t_ref[-1] < 4000.0  # PyBaMM stopped at its cut-off
-    res = battlab.simulate(cell, prof, soc0=1.0, isothermal=True, ambient=temps["Ambient"], T0=temps["Initial"],
-                           mesh=REFINED)
+    res = battlab.simulate(
+        cell, prof, soc0=1.0, isothermal=True, ambient=temps["Ambient"], T0=temps["Initial"], mesh=REFINED
+    )
     assert res.ended_by == f"V < {float(cell['V_min']):g}"
     rmse, n = rmse_mV(res, t_ref, v_ref)
     assert n > 3500
@@ -102,8 +104,10 @@ def test_charge_and_discharge_pulses(nmc_bpx: Path) -> None:
     sign conversion and the zero-order hold agree with PyBaMM in both directions."""
     cell = Cell.from_bpx(nmc_bpx)
     q = float(cell["Q_nom"])
-    steps = Profile.from_segments(np.array([30.0, 60.0, 30.0, 60.0, 30.0, 120.0, 60.0, 210.0]),
-                                  np.array([0.0, -2.0, 0.0, 1.0, -3.0, 0.0, 2.0, 0.0]) * q)
+    steps = Profile.from_segments(
+        np.array([30.0, 60.0, 30.0, 60.0, 30.0, 120.0, 60.0, 210.0]),
+        np.array([0.0, -2.0, 0.0, 1.0, -3.0, 0.0, 2.0, 0.0]) * q,
+    )
     t = np.arange(0.0, 601.0)
     prof = Profile(t, steps.value_at(t))
     t_ref, v_ref, temps = run_pybamm(nmc_bpx, prof, 0.6)

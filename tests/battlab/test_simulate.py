@@ -176,7 +176,8 @@ def check_never_fails(cell: Cell, cases: list[tuple[str, Profile, float]], sensi
         res = battlab.simulate(cell, prof, soc0=soc0, sensitivities=sensitivities, v_limits=WIDE)
         ok = res.ended_by is None or res.ended_by.startswith(("V <", "V >", "T_surface", "surface stoich"))
         finite = np.all(np.isfinite(res.voltage)) and (
-            res.sensitivities is None or np.all(np.isfinite(res.sensitivities)))
+            res.sensitivities is None or np.all(np.isfinite(res.sensitivities))
+        )
         if not (ok and finite):
             failures[label] = res.ended_by
         completed += res.ended_by is None

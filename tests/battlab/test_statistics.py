@@ -75,8 +75,15 @@ def test_unidentifiable_directions_of_a_dependent_group_are_named() -> None:
     n = 60
     names = ("R_s_n", "D_s_n", "R_f_n", "k_n", "eps_e_n")
     base = rng.normal(size=(n, 3))
-    J = 30 * np.column_stack([base[:, 0], base[:, 1], base[:, 0] - base[:, 1] + 1e-13 * rng.normal(size=n),
-                              base[:, 0] + 2 * base[:, 1], base[:, 2]])
+    J = 30 * np.column_stack(
+        [
+            base[:, 0],
+            base[:, 1],
+            base[:, 0] - base[:, 1] + 1e-13 * rng.normal(size=n),
+            base[:, 0] + 2 * base[:, 1],
+            base[:, 2],
+        ]
+    )
     st = statistics.compute(names, np.full(5, 0.5), J, rng.normal(size=n))
     assert not st.valid and len(st.null_space) == 2
     assert set(st.unidentifiable) == {"R_s_n", "D_s_n", "R_f_n", "k_n"}

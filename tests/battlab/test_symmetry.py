@@ -46,10 +46,14 @@ def test_orbit_intervals_are_the_orbit_segment_within_the_bounds() -> None:
         v = float(np.prod([truth[n] ** a for n, a in powers.items()]))
         exact[inv] = symmetry.Invariant(inv, v, (v, v), "")
     got = symmetry.orbit_intervals(exact, ["p"])
-    lam_lo = max((P.SPECS[n].lower / truth[n]) ** (1 / a) if a > 0 else (P.SPECS[n].upper / truth[n]) ** (1 / a)
-                 for n, a in symmetry.ORBITS["p"].items())
-    lam_hi = min((P.SPECS[n].upper / truth[n]) ** (1 / a) if a > 0 else (P.SPECS[n].lower / truth[n]) ** (1 / a)
-                 for n, a in symmetry.ORBITS["p"].items())
+    lam_lo = max(
+        (P.SPECS[n].lower / truth[n]) ** (1 / a) if a > 0 else (P.SPECS[n].upper / truth[n]) ** (1 / a)
+        for n, a in symmetry.ORBITS["p"].items()
+    )
+    lam_hi = min(
+        (P.SPECS[n].upper / truth[n]) ** (1 / a) if a > 0 else (P.SPECS[n].lower / truth[n]) ** (1 / a)
+        for n, a in symmetry.ORBITS["p"].items()
+    )
     assert lam_lo == pytest.approx(1.0)  # k_p's truth sits on its lower bound: the orbit can only grow
     for n, a in symmetry.ORBITS["p"].items():
         ends = sorted([truth[n] * lam_lo**a, truth[n] * lam_hi**a])

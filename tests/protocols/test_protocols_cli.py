@@ -71,10 +71,7 @@ def test_export_a_protocol_file_and_a_csv(tmp_path: Path) -> None:
     res = CliRunner().invoke(export, [str(plan), "-f", "arbin", "-o", str(tmp_path / "out")])
     assert res.exit_code == 0, res.output
     back = read_back("arbin", tmp_path / "out" / "OCV_test_C_20_x1.sdu")
-    assert (
-        difference(expected(Protocol.load(plan), "arbin"), back.items, time_tol=5e-4, current_tol=5e-7)
-        is None
-    )
+    assert difference(expected(Protocol.load(plan), "arbin"), back.items, time_tol=5e-4, current_tol=5e-7) is None
     csv = tmp_path / "in.csv"
     csv.write_text("Test Time / s,Current / A\n0,1\n10,-1\n20,-1\n")
     res = CliRunner().invoke(export, [str(csv), "-f", "maccor", "-o", str(tmp_path / "m")])

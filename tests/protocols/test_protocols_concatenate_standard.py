@@ -52,9 +52,7 @@ def test_cccv_to_ocv_sets_each_start_soc(lib: Library) -> None:
 
 
 def test_unknown_start_soc_resets_first_then_tracks(lib: Library) -> None:
-    c = concatenate(
-        [lib[725], lib[339]], start_soc=None
-    )  # drive from 0.8, then a charge pulse train from 0.4
+    c = concatenate([lib[725], lib[339]], start_soc=None)  # drive from 0.8, then a charge pulse train from 0.4
     first = c.protocol.steps[0]
     assert isinstance(first, CCCV) and first.voltage == 4.2 and first.current > 0
     to_start = c.protocol.steps[2]
@@ -104,11 +102,7 @@ def test_ocv_tests() -> None:
 def test_hppc_and_conventional() -> None:
     h = hppc()
     pulses = [s for s in h.steps if isinstance(s, ConstantCurrent) and s.ends[0].quantity.value == "time"]
-    assert (
-        len(pulses) == 18
-        and pulses[0].current == pytest.approx(-2.7)
-        and pulses[1].current == pytest.approx(2.025)
-    )
+    assert len(pulses) == 18 and pulses[0].current == pytest.approx(-2.7) and pulses[1].current == pytest.approx(2.025)
     conv = conventional()
     cc = [s for s in conv.steps if isinstance(s, ConstantCurrent) and "C " in s.label]
     rates = sorted(round(s.current / 2.7, 3) for s in cc)

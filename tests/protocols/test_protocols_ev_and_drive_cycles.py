@@ -38,9 +38,7 @@ def test_auxiliary_load_discharges_at_standstill() -> None:
     assert i == pytest.approx(np.full(2, -500.0 / (96 * 74 * 3.6)))
 
 
-@pytest.mark.parametrize(
-    "field,value", [("mass_kg", 0.0), ("drivetrain_efficiency", 1.5), ("cells_in_series", 0)]
-)
+@pytest.mark.parametrize("field,value", [("mass_kg", 0.0), ("drivetrain_efficiency", 1.5), ("cells_in_series", 0)])
 def test_ev_model_rejects_impossible_parameters(field: str, value: float) -> None:
     with pytest.raises(InputError, match=field.split("_")[0]):
         EVModel(**{field: value})

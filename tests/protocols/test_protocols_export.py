@@ -36,9 +36,7 @@ LOOPING = (Format.ARBIN, Format.BIOLOGIC, Format.NEWARE)
 
 
 def _demo_profiles() -> tuple[Profile, Profile]:
-    pulses = pulse_profile(
-        PulseSpec(2.0, 1, 20.0, Direction.BOTH), charge_ah=0.005, id="pulse-demo", soc0=0.6
-    )
+    pulses = pulse_profile(PulseSpec(2.0, 1, 20.0, Direction.BOTH), charge_ah=0.005, id="pulse-demo", soc0=0.6)
     sine = sine_profile(SineSpec(0.1, 30.0, Direction.BOTH), charge_ah=0.005, id="sine-demo", soc0=0.6)
     return pulses, sine
 
@@ -130,9 +128,7 @@ def test_drive_cycles_export_where_segments_allow(lib: Library, fmt: Format, tmp
 
 @pytest.mark.parametrize("fmt", LOOPING)
 def test_too_many_steps_is_refused_and_nothing_is_written(lib: Library, fmt: Format, tmp_path: Path) -> None:
-    with pytest.raises(
-        InputError, match=r"needs 21\d\d (steps|sequences) .* more than its 1000; .*--max-steps"
-    ):
+    with pytest.raises(InputError, match=r"needs 21\d\d (steps|sequences) .* more than its 1000; .*--max-steps"):
         export(lib[721], fmt, tmp_path / "out")
     assert not any((tmp_path / "out").iterdir())
     back = read_back(fmt, export(lib[721], fmt, tmp_path / "more", max_steps=5000).path)
@@ -143,9 +139,7 @@ def test_too_many_steps_is_refused_and_nothing_is_written(lib: Library, fmt: For
     "fmt,hold_s,finest",
     [(Format.MACCOR, 0.005, "0.01 s"), (Format.NEWARE, 0.05, "0.1 s"), (Format.ARBIN, 0.0025, "0.01 s")],
 )
-def test_timing_finer_than_the_format_is_refused(
-    fmt: Format, hold_s: float, finest: str, tmp_path: Path
-) -> None:
+def test_timing_finer_than_the_format_is_refused(fmt: Format, hold_s: float, finest: str, tmp_path: Path) -> None:
     p = Profile.from_segments([1.0, hold_s, 1.0], [1.0, -1.0, 0.0], id="fine")
     with pytest.raises(InputError, match=rf"holds -1 A for {hold_s:g} s at t = 1 s, finer than .*{finest}"):
         export(p, fmt, tmp_path)
@@ -213,9 +207,7 @@ def _hold_runs(draw: st.DrawFn) -> list[tuple[float, float]]:
     """Random holds (multiples of 0.1 s, currents to 1 mA) with repeated runs inside."""
     out: list[tuple[float, float]] = []
     for _ in range(draw(st.integers(1, 4))):
-        body = draw(
-            st.lists(st.tuples(st.integers(1, 50), st.integers(-13500, 13500)), min_size=1, max_size=4)
-        )
+        body = draw(st.lists(st.tuples(st.integers(1, 50), st.integers(-13500, 13500)), min_size=1, max_size=4))
         reps = draw(st.integers(1, 5))
         out += [(d / 10, c / 1000) for d, c in body] * reps
     return out
@@ -223,9 +215,7 @@ def _hold_runs(draw: st.DrawFn) -> list[tuple[float, float]]:
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(holds=_hold_runs(), fmt=st.sampled_from([Format.MACCOR, *LOOPING, Format.CSV]))
-def test_random_profiles_round_trip(
-    tmp_path_factory: pytest.TempPathFactory, holds: list, fmt: Format
-) -> None:
+def test_random_profiles_round_trip(tmp_path_factory: pytest.TempPathFactory, holds: list, fmt: Format) -> None:
     d = np.array([h[0] for h in holds])
     c = np.array([h[1] for h in holds])
     p = Profile.from_segments(d, c, id="random")

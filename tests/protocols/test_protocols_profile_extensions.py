@@ -39,11 +39,7 @@ def test_with_meta_replaces_fields_and_refuses_unknown_ones() -> None:
 
 
 @settings(max_examples=60, deadline=None)
-@given(
-    st.lists(
-        st.tuples(st.integers(1, 50), st.sampled_from([-3.0, -1.5, 0.0, 0.5, 2.0])), min_size=1, max_size=40
-    )
-)
+@given(st.lists(st.tuples(st.integers(1, 50), st.sampled_from([-3.0, -1.5, 0.0, 0.5, 2.0])), min_size=1, max_size=40))
 def test_from_segments_inverts_segments(pieces: list[tuple[int, float]]) -> None:
     d = np.array([x[0] * 0.5 for x in pieces])
     c = np.array([x[1] for x in pieces])
