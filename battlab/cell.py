@@ -11,7 +11,7 @@ import hashlib
 import json
 import math
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -121,6 +121,32 @@ def _check_value(key: str, value: Any) -> Value:
     return v
 
 
+@dataclass(frozen=True)
+class CellFormat:
+    """A cell file format: ``read(path) -> Cell`` and ``write(cell, path, **extra) -> path``."""
+
+    read: Callable[[Path], Cell]
+    write: Callable[..., Path]
+
+
+#: Cell file formats by name. The I/O modules that implement them register themselves
+#: (:mod:`battlab.io.bpx` registers ``"bpx"`` when :mod:`battlab` is imported), so that cells need not import
+#: the readers that build them.
+_FORMATS: dict[str, CellFormat] = {}
+
+
+def register_format(name: str, read: Callable[[Path], Cell], write: Callable[..., Path]) -> None:
+    """Make a cell file format available to :meth:`Cell.load`, :meth:`Cell.from_bpx` and :meth:`Cell.to_bpx`."""
+    _FORMATS[name] = CellFormat(read, write)
+
+
+def _format(name: str) -> CellFormat:
+    try:
+        return _FORMATS[name]
+    except KeyError:
+        raise InputError(f"cell format {name!r} is not available (import battlab to register it)") from None
+
+
 @dataclass(frozen=True, eq=False)
 class Cell:
     """An immutable cell: ``values[key]`` is a number (SI) or a function; ``sources[key]`` cites it."""
@@ -205,16 +231,12 @@ class Cell:
 
     @classmethod
     def from_bpx(cls, path: str | Path, *, target_soc: float | None = None) -> Cell:
-        """Read a BPX JSON file (validated by the ``bpx`` package); see :mod:`battlab.bpx_io`."""
-        from battlab.bpx_io import read_bpx
-
-        return read_bpx(Path(path))
+        """Read a BPX JSON file (validated by the ``bpx`` package); see :mod:`battlab.io.bpx`."""
+        return _format("bpx").read(Path(path))
 
     def to_bpx(self, path: str | Path, **extra: Any) -> Path:
-        """Write the cell as BPX JSON (validated by the ``bpx`` package); see :mod:`battlab.bpx_io`."""
-        from battlab.bpx_io import write_bpx
-
-        return write_bpx(self, Path(path), **extra)
+        """Write the cell as BPX JSON (validated by the ``bpx`` package); see :mod:`battlab.io.bpx`."""
+        return _format("bpx").write(self, Path(path), **extra)
 
     def to_toml_dict(self) -> dict[str, Any]:
         """The TOML representation read by :meth:`load`."""

@@ -1,4 +1,4 @@
-"""BPX import/export (battlab.bpx_io) against the bpx package and PyBaMM's BPX importer."""
+"""BPX import/export (battlab.io.bpx) against the bpx package and PyBaMM's BPX importer."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from battlab import Cell
-from battlab.bpx_io import EXT, read_bpx, write_bpx
 from battlab.cell import KEYS, F
 from battlab.functions import Expr, Table, evaluate
+from battlab.io.bpx import EXT, read_bpx, write_bpx
 from protocols.errors import InputError
 
 DATA = Path(os.environ.get("BATTLAB_DATA", Path(__file__).resolve().parents[3] / "shared" / "data")) / "bpx"

@@ -1,49 +1,7 @@
-"""BPX (Battery Parameter eXchange) import and export, following PyBaMM's BPX importer.
-
-The mapping is that of ``pybamm/parameters/bpx.py`` (PyBaMM 26), so that a BPX cell simulated in battlab
-and in PyBaMM is the same cell and starts from the same concentrations at the same SOC:
-
-- electrolyte transport: BPX gives a transport efficiency B = ε^b per region; it becomes ``B_n``, ``B_s``,
-  ``B_p`` (used instead of Bruggeman) and the equivalent exponent ``brugg_* = ln B / ln ε``, as PyBaMM does;
-- electrode conductivities are effective values: ``sigma_*`` as given, ``brugg_s_* = 0``;
-- area: ``A`` = electrode area × number of electrode pairs;
-- active material: ε_s = a_s R_s / 3 from "Surface area per unit volume" (PyBaMM's "BET" line), so that
-  a_s = 3 ε_s / R_s holds in the model;
-- kinetics: BPX's j0 = F k_BPX √((c_e/c_e0)(c_s/c_max)(1 − c_s/c_max)) [mol m⁻² s⁻¹ → A m⁻²] equals
-  battlab's (and PyBaMM's) j0 = k √(c_e c_s (c_max − c_s)) with k = k_BPX F / (c_max √c_e0), c_e0 the
-  initial electrolyte concentration of the BPX ``State`` (1000 mol m⁻³ when absent, PyBaMM's default);
-- thermodynamic factor 1 (``dlnf = 0``, ``dlnf_scale = 1``); no film or contact resistance (0);
-- diffusivities given as functions of stoichiometry: ``D_s_*`` = D(θ = 0.5) and ``D_s_*_shape`` =
-  D(θ)/D(0.5) (an expression or a scaled table); tables ``{"x", "y"}`` become :class:`Table`;
-- SOC: ``sto_n_0``/``sto_n_100`` = negative minimum/maximum stoichiometry, ``sto_p_0``/``sto_p_100`` =
-  positive maximum/minimum (PyBaMM's ``get_electrode_stoichiometries``); ``n_Li`` = H⁻θ⁻(0 %) + H⁺θ⁺(0 %);
-- thermal: PyBaMM's lumped model is ρ c_p V dT/dt = Q − h A_ext (T − T_amb) with h from
-  ``State.Thermal environment`` (0, adiabatic, when absent). battlab's two-state model (B1, B2) reproduces
-  it with all heat capacity in the core and a stiff core-to-surface link: C1 + C2 = ρ c_p V with
-  C2 = 10⁻³ ρ c_p V, h12 = ρ c_p V / (1 s) (core–surface relaxation C2/h12 = 1 ms; in steady cooling the
-  core–surface difference is h2a/h12 of the rise over ambient), h2a = h A_ext. T_core is then PyBaMM's
-  volume-averaged temperature (PyBaMM's lumped "surface temperature" is the ambient);
-- ``T_max`` is not part of BPX: 333.15 K unless given, and the source says so.
-
-Hysteresis: BPX cells with two OCP branches (BPX 1.x ``OCP (lithiation)``/``OCP (delithiation)`` or the
-``User-defined`` "<Negative|Positive> electrode lithiation/delithiation OCP [V]" of the example file)
-whose main OCP is a constant placeholder are read with the mean of the two branches (battlab does not
-model hysteresis); a real main OCP is used as given, as PyBaMM does without a hysteresis option.
-
-Export writes the current BPX schema of the installed ``bpx`` package (validated before writing) with the
-same conventions in reverse (identified scale factors multiplied into D_e and κ, σ written as effective
-σ ε_s^brugg_s, k converted back, the lumped-thermal equivalent ρ c_p V = C1 + C2 and h A_ext = h2a over a
-nominal V = electrode-stack volume, c_p = 1000 J kg⁻¹ K⁻¹, A_ext = 6 V^(2/3)). Everything BPX cannot
-hold (the two-state thermal values, T_max, R_c, R_f, the activity function, the scale factors, Bruggeman
-exponents) is kept under ``User-defined`` as "battlab: <key>" entries, which :func:`read_bpx` restores,
-so that battlab → BPX → battlab is exact; they take precedence over the standard fields, so remove them
-when editing those fields of a battlab-written file by hand. Extra metadata (confidence intervals, a fit
-report) goes under ``User-defined`` too, flattened to numbers; texts go to the header's Description.
-"""
+"""BPX JSON → :class:`~battlab.cell.Cell`, following PyBaMM's BPX importer (see :mod:`battlab.io.bpx`)."""
 
 from __future__ import annotations
 
-import ast
 import json
 import math
 import re
@@ -55,36 +13,21 @@ from typing import Any
 import numpy as np
 
 from battlab.cell import Cell, F
-from battlab.functions import Expr, Function, Table, as_function, evaluate, to_json
-from protocols.errors import InputError
-
-#: Prefix of battlab's own entries in the BPX "User-defined" section.
-EXT = "battlab: "
-#: Marker entry: present in every file battlab writes.
-EXT_VERSION = EXT + "extension version"
-#: Marker entry: 1 when the cell's stoichiometry window follows from n_Li and the voltage limits.
-EXT_WINDOW = EXT + "stoichiometry window from n_Li"
-#: Functions PyBaMM's BPX reader can execute (its preamble imports exp, tanh, cosh only).
-PYBAMM_FUNCTIONS = frozenset({"exp", "tanh", "cosh"})
-#: Heat capacity fraction kept in the surface node, and core-surface relaxation time [s].
-SURFACE_FRACTION = 1e-3
-CORE_SURFACE_TAU = 1.0
-T_MAX_DEFAULT = 333.15  # K, when a BPX file gives none
-C_E0_DEFAULT = 1000.0  # mol/m3, PyBaMM's default initial electrolyte concentration
-T_REF_DEFAULT = 298.15  # K
-CP_NOMINAL = 1000.0  # J/(kg K), nominal split of rho*c_p on export
-RHO_CP_DEFAULT = 2.0e6  # J/(m3 K) over the electrode stack, when a BPX file has no thermal data
-
-_CONSTANTS = {"pi": math.pi, "e": math.e}  # the named constants battlab expressions may use
-_STO_GRID = np.linspace(0.0, 1.0, 201)
-_CE_GRID = np.linspace(0.0, 6000.0, 241)
-# keys whose value BPX cannot hold exactly: written as "battlab: <key>" and restored on reading
-_EXT_KEYS = (
-    *("C1", "C2", "h12", "h2a", "T_max", "R_c", "R_f_n", "R_f_p", "n_Li", "k_n", "k_p"),
-    *("dlnf", "dlnf_scale", "D_e", "D_e_scale", "kappa", "kappa_scale", "sigma_n", "sigma_p"),
-    *("brugg_s_n", "brugg_s_p", "brugg_n", "brugg_s", "brugg_p", "B_n", "B_s", "B_p"),
-    *("D_s_n", "D_s_p", "D_s_n_shape", "D_s_p_shape"),
+from battlab.functions import Expr, Function, Table, as_function, evaluate
+from battlab.io.bpx.common import (
+    C_E0_DEFAULT,
+    CORE_SURFACE_TAU,
+    EXT,
+    EXT_KEYS,
+    EXT_VERSION,
+    EXT_WINDOW,
+    RHO_CP_DEFAULT,
+    STO_GRID,
+    SURFACE_FRACTION,
+    T_MAX_DEFAULT,
+    T_REF_DEFAULT,
 )
+from protocols.errors import InputError
 
 
 # --- reading ---------------------------------------------------------------------------------------------
@@ -92,7 +35,7 @@ def read_bpx(path: str | Path) -> Cell:
     """Read and validate a BPX JSON file (``bpx`` package; v0.x files are migrated) into a :class:`Cell`."""
     path = Path(path)
     raw = _load_json(path)
-    model = _validate(raw, str(path))
+    model = validate(raw, str(path))
     par = model.parameterisation
     for section in ("cell", "electrolyte", "negative_electrode", "positive_electrode", "separator"):
         if getattr(par, section, None) is None:
@@ -249,7 +192,7 @@ def read_bpx(path: str | Path) -> Cell:
         if user.get(EXT_WINDOW) == 1 and EXT + "n_Li" in user:
             for key in ("sto_n_0", "sto_n_100", "sto_p_0", "sto_p_100"):
                 values.pop(key, None)
-        for key in _EXT_KEYS:
+        for key in EXT_KEYS:
             if EXT + key in user:
                 values[key] = as_function(_user_value(user[EXT + key]))
                 sources[key] = src + " (battlab extension)"
@@ -280,7 +223,7 @@ _HEADER = {"Model", "BPX", "Title", "Description", "References"}
 _TYPE_TAG = re.compile(r"^(float|int|str|bool|none|list\[.*\]|dict\[.*\]|InterpolatedTable|function-.*|json-.*)$")
 
 
-def _validate(raw: dict[str, Any], where: str) -> Any:
+def validate(raw: dict[str, Any], where: str) -> Any:
     """Validate with the ``bpx`` package; any failure becomes one line naming the field."""
     import bpx
     from pydantic import ValidationError
@@ -420,191 +363,4 @@ def _mean(a: float | Function, b: float | Function) -> Function:
 
 
 def _grid(f: float | Function) -> Iterable[float]:
-    return f.x if isinstance(f, Table) else _STO_GRID
-
-
-# --- writing ---------------------------------------------------------------------------------------------
-def write_bpx(cell: Cell, path: str | Path, **extra: Any) -> Path:
-    """Write ``cell`` as BPX JSON (current schema of the installed ``bpx``), validated before writing.
-
-    ``extra`` (e.g. ``confidence_intervals={"D_s_n": (lo, hi)}``, ``fit_report={...}``) is stored under
-    "User-defined": numbers as they are, mappings and sequences flattened into "<name>: <key> [i]" entries,
-    booleans as 0/1; texts are appended to the header's Description (PyBaMM takes User-defined entries as
-    parameters and refuses texts there).
-    """
-    import bpx
-
-    path = Path(path)
-    v = cell.values
-    n0, n1, p0, p1 = cell.stoichiometry_window()
-    c_e0 = float(v["c_e0"])
-    area = float(v["A"])
-    stack = area * (float(v["L_n"]) + float(v["L_s"]) + float(v["L_p"]))
-    c_tot = float(v["C1"]) + float(v["C2"])
-    a_ext = 6.0 * stack ** (2.0 / 3.0)
-    header: dict[str, Any] = {"BPX": bpx.__version__, "Title": cell.name, "Model": "DFN"}
-    if cell.description:
-        header["Description"] = cell.description
-    refs = sorted({s for s in cell.sources.values() if s})
-    if refs:
-        header["References"] = "; ".join(refs)[:20000]
-
-    def electrode(s: str) -> dict[str, Any]:
-        eps_s, r_s, c_max = float(v[f"eps_s_{s}"]), float(v[f"R_s_{s}"]), float(v[f"c_max_{s}"])
-        eps_e = float(v[f"eps_e_{s}"])
-        d = _product(float(v[f"D_s_{s}"]), v.get(f"D_s_{s}_shape"))
-        out: dict[str, Any] = {
-            "Thickness [m]": float(v[f"L_{s}"]),
-            "Porosity": eps_e,
-            "Transport efficiency": float(v[f"B_{s}"]) if f"B_{s}" in v else eps_e ** float(v[f"brugg_{s}"]),
-            "Conductivity [S.m-1]": float(v[f"sigma_{s}"]) * eps_s ** float(v[f"brugg_s_{s}"]),
-            "Particle radius [m]": r_s,
-            "Surface area per unit volume [m-1]": 3.0 * eps_s / r_s,
-            "Maximum concentration [mol.m-3]": c_max,
-            "Diffusivity [m2.s-1]": _bpx_function(d, _STO_GRID),
-            "Diffusivity activation energy [J.mol-1]": float(v[f"E_D_s_{s}"]),
-            "OCP [V]": _bpx_function(v[f"U_{s}"], _STO_GRID),
-            "Entropic change coefficient [V.K-1]": _bpx_function(v[f"dUdT_{s}"], _STO_GRID),
-            "Reaction rate constant [mol.m-2.s-1]": float(v[f"k_{s}"]) * c_max * math.sqrt(c_e0) / F,
-            "Reaction rate constant activation energy [J.mol-1]": float(v[f"E_k_{s}"]),
-        }
-        lo, hi = (n0, n1) if s == "n" else (p1, p0)
-        out["Minimum stoichiometry"] = float(lo)
-        out["Maximum stoichiometry"] = float(hi)
-        return out
-
-    eps_e_s = float(v["eps_e_s"])
-    user: dict[str, Any] = {EXT_VERSION: 1, EXT_WINDOW: int("sto_n_0" not in v)}
-    for key in _EXT_KEYS:
-        if key in v:
-            val = v[key]
-            user[EXT + key] = _bpx_text(val) if isinstance(val, Expr) else to_json(val)
-    descriptions: list[str] = []
-    for name, value in extra.items():
-        _flatten(name, value, user, descriptions)
-    if descriptions:  # PyBaMM cannot take texts as parameters: they go to the header's description
-        header["Description"] = "; ".join([*([cell.description] if cell.description else []), *descriptions])
-
-    obj: dict[str, Any] = {
-        "Header": header,
-        "Parameterisation": {
-            "Cell": {
-                "Electrode area [m2]": area,
-                "Number of electrode pairs connected in parallel to make a cell": 1,
-                "Lower voltage cut-off [V]": float(v["V_min"]),
-                "Upper voltage cut-off [V]": float(v["V_max"]),
-                "Nominal cell capacity [A.h]": float(v["Q_nom"]),
-                "Reference temperature [K]": float(v["T_ref"]),
-                "Volume [m3]": stack,
-                "External surface area [m2]": a_ext,
-                "Density [kg.m-3]": c_tot / (CP_NOMINAL * stack),
-                "Specific heat capacity [J.K-1.kg-1]": CP_NOMINAL,
-            },
-            "Electrolyte": {
-                "Cation transference number": float(v["t_plus"]),
-                "Diffusivity [m2.s-1]": _bpx_function(_product(float(v["D_e_scale"]), v["D_e"]), _CE_GRID),
-                "Diffusivity activation energy [J.mol-1]": float(v["E_D_e"]),
-                "Conductivity [S.m-1]": _bpx_function(_product(float(v["kappa_scale"]), v["kappa"]), _CE_GRID),
-                "Conductivity activation energy [J.mol-1]": float(v["E_kappa"]),
-            },
-            "Negative electrode": electrode("n"),
-            "Positive electrode": electrode("p"),
-            "Separator": {
-                "Thickness [m]": float(v["L_s"]),
-                "Porosity": eps_e_s,
-                "Transport efficiency": float(v["B_s"]) if "B_s" in v else eps_e_s ** float(v["brugg_s"]),
-            },
-            "User-defined": user,
-        },
-        "State": {
-            "Initial conditions": {
-                "Initial electrolyte concentration [mol.m-3]": c_e0,
-                "Initial temperature [K]": float(v["T_ref"]),
-            },
-            "Thermal environment": {
-                "Ambient temperature [K]": float(v["T_ref"]),
-                "Heat transfer coefficient [W.m-2.K-1]": float(v["h2a"]) / a_ext,
-            },
-        },
-    }
-    _validate(json.loads(json.dumps(obj)), f"BPX export of cell {cell.name!r}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(obj, indent=2) + "\n", encoding="utf-8")
-    return path
-
-
-def _product(scale: float, f: float | Function | None) -> float | Function:
-    """scale × f (f a number, an expression, a table or None for 1)."""
-    if f is None:
-        return scale
-    if isinstance(f, float | int):
-        return scale * float(f)
-    if scale == 1.0:
-        return f
-    if isinstance(f, Table):
-        return Table(f.x, tuple(scale * y for y in f.y))
-    return Expr(f"{scale!r}*({f.text})")
-
-
-def _bpx_function(f: float | Function, grid: np.ndarray) -> Any:
-    """A BPX value PyBaMM can use: a number, an expression in exp/tanh/cosh, else a table on ``grid``."""
-    if isinstance(f, float | int):
-        return float(f)
-    if isinstance(f, Expr) and _call_names(f) <= PYBAMM_FUNCTIONS:
-        return _bpx_text(f)
-    if isinstance(f, Table):
-        return to_json(f)
-    y = np.asarray(evaluate(f, grid), float)
-    return {"x": [float(t) for t in grid], "y": [float(t) for t in y]}
-
-
-def _call_names(f: Expr) -> set[str]:
-    tree = ast.parse(f.text, mode="eval")
-    return {n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)}
-
-
-class _Inline(ast.NodeTransformer):
-    """Replace the named constants pi and e by numbers (BPX functions know only the variable x)."""
-
-    def visit_Name(self, node: ast.Name) -> ast.AST:
-        if node.id in _CONSTANTS:
-            return ast.copy_location(ast.Constant(_CONSTANTS[node.id]), node)
-        return node
-
-
-def _bpx_text(f: Expr) -> str:
-    """The expression in BPX syntax: its own text unless it names a constant."""
-    tree = ast.parse(f.text, mode="eval")
-    if not any(isinstance(n, ast.Name) and n.id in _CONSTANTS for n in ast.walk(tree)):
-        return f.text
-    return ast.unparse(_Inline().visit(tree))
-
-
-def _flatten(name: str, value: Any, out: dict[str, Any], texts: list[str]) -> None:
-    """Store ``value`` under User-defined as numbers (BPX accepts numbers, functions and tables only)."""
-    if value is None:
-        return
-    if isinstance(value, bool | np.bool_):
-        out[name] = int(bool(value))
-    elif isinstance(value, int | float | np.integer | np.floating):
-        x = float(value)
-        if not math.isfinite(x):
-            texts.append(f"{name}: {x}")
-        else:
-            out[name] = x
-    elif isinstance(value, str):
-        texts.append(f"{name}: {value}")
-    elif isinstance(value, Mapping):
-        for k, sub in value.items():
-            _flatten(f"{name}: {k}", sub, out, texts)
-    elif isinstance(value, Iterable):
-        for i, sub in enumerate(value):
-            _flatten(f"{name} [{i}]", sub, out, texts)
-    else:
-        raise InputError(
-            f"BPX export: extra metadata {name!r} must be numbers, texts, mappings or sequences, "
-            f"got {type(value).__name__}"
-        )
-
-
-__all__ = ["read_bpx", "write_bpx", "EXT"]
+    return f.x if isinstance(f, Table) else STO_GRID
