@@ -1,4 +1,4 @@
-"""Timings of the protocols package against its targets (issue 3).
+"""Timings of the protocols package against its targets.
 
 * library build without screening: target <= 10 s (also save/load to HDF5, for information);
 * export of a 3600 s profile to every format: target <= 1 s per format. The profile is library id 720 (a

@@ -129,7 +129,7 @@ class Profile:
         t = np.linspace(0.0, duration, n + 1)
         return cls(t, np.full(n + 1, float(current)), **meta)
 
-    # --- additions (protocols issue 3): derived quantities used by the library and the exporters ---
+    # --- derived quantities used by the library and the exporters ---
 
     @property
     def max_abs_current(self) -> float:
