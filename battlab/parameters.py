@@ -103,3 +103,12 @@ def check_names(names: list[str] | tuple[str, ...]) -> tuple[str, ...]:
     if dup:
         raise InputError(f"parameter(s) {sorted(dup)} given more than once")
     return out
+
+
+#: The paper's Table 9: the parameter groups 1–4 it identified one after the other (its cell, its normalisation).
+TABLE9_GROUPS: tuple[tuple[str, ...], ...] = (
+    ("R_s_n", "R_s_p"),
+    ("D_s_n", "D_s_p", "eps_e_n", "kappa_scale", "D_e_scale", "dlnf_scale"),
+    ("R_f_n", "k_n", "eps_e_p", "c_e0", "R_f_p"),
+    ("sigma_n", "sigma_p", "eps_e_s", "k_p", "t_plus"),
+)

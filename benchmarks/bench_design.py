@@ -59,7 +59,7 @@ class MemorySampler:
 
 def run_sweep(store: Path, workers: int, limit: int | None) -> None:
     import battlab
-    from battlab import sweep
+    from battlab.design import sweep
     from battlab.design.conventional import conventional_profiles
     from protocols import Library
 
@@ -97,10 +97,9 @@ def run_sweep(store: Path, workers: int, limit: int | None) -> None:
 
 
 def run_design(store: Path) -> None:
-    from battlab import identifiability
-    from battlab.design import firstorder, information, relax
+    from battlab.design import firstorder, identifiability, information, relax
     from battlab.design import groups as gd
-    from battlab.sweep import SensitivityStore
+    from battlab.design.sweep import SensitivityStore
 
     with SensitivityStore.open(store) as s:
         t0 = time.perf_counter()

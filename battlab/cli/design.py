@@ -67,8 +67,8 @@ def sensitivity(
     """
     from rich.console import Console
 
-    from battlab import sweep
     from battlab.cell import Cell
+    from battlab.design import sweep
     from battlab.design.conventional import conventional_profiles
     from protocols.library import Library
 
@@ -128,7 +128,7 @@ def _print_sweep(console, rep) -> None:  # noqa: ANN001 (rich console, SweepRepo
 def _open_store(path: str):  # noqa: ANN202 (SensitivityStore)
     from rich.console import Console
 
-    from battlab.sweep import SensitivityStore
+    from battlab.design.sweep import SensitivityStore
 
     store = SensitivityStore.open(path)
     if store.source_changed():
@@ -141,7 +141,7 @@ def _open_store(path: str):  # noqa: ANN202 (SensitivityStore)
 
 def _load_groups(spec: str | None, ranking, k: int, by: str) -> tuple[list[list[str]], str]:  # noqa: ANN001
     """Groups from a JSON file, the paper's Table 9 ('paper'), or computed (None)."""
-    from battlab import identifiability
+    from battlab.design import identifiability
 
     if spec is None:
         return identifiability.group(ranking, k, by=by), f"computed (natural breaks, k = {k}, by {by})"
@@ -204,8 +204,8 @@ def groups(
     from rich.console import Console
     from rich.table import Table
 
-    from battlab import identifiability, parameters
-    from battlab.design import information
+    from battlab import parameters
+    from battlab.design import identifiability, information
     from battlab.plots import identifiability as figs
 
     console = Console()
@@ -387,9 +387,8 @@ def design(
 
     from rich.console import Console
 
-    from battlab import identifiability
     from battlab.design import groups as gd
-    from battlab.design import information
+    from battlab.design import identifiability, information
     from battlab.design import plan as planmod
     from battlab.design.criteria import Criterion
     from battlab.noise import NoiseModel

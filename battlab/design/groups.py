@@ -1,4 +1,4 @@
-"""Group-wise, cumulative optimal designs (issue 4, step 5): for group k, the information restricted to the
+"""Group-wise, cumulative optimal designs: for group k, the information restricted to the
 parameters of groups 1..k (the others fixed at their nominal values), as the paper identifies them cumulatively.
 
 For each stage: a singularity check, the convex relaxation (cvxpy), the independent first-order solution, the

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from battlab.design.sweep import CONVENTIONAL, GROUP, SensitivityStore
 from battlab.noise import NoiseModel
-from battlab.sweep import CONVENTIONAL, GROUP, SensitivityStore
 from protocols.errors import InputError
 
 

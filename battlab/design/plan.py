@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from battlab.design.groups import GroupDesign
-from battlab.sweep import SensitivityStore, model_version, profile_hash
+from battlab.design.sweep import SensitivityStore, model_version, profile_hash
 from protocols.concatenate import concatenate
 from protocols.errors import InputError
 from protocols.profile import Profile

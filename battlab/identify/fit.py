@@ -34,12 +34,7 @@ from protocols.profile import Profile
 QUANTUM = 1e-4
 
 #: The paper's Table 9 groups (the design module's groups replace them when a plan gives its own).
-TABLE9_GROUPS: tuple[tuple[str, ...], ...] = (
-    ("R_s_n", "R_s_p"),
-    ("D_s_n", "D_s_p", "eps_e_n", "kappa_scale", "D_e_scale", "dlnf_scale"),
-    ("R_f_n", "k_n", "eps_e_p", "c_e0", "R_f_p"),
-    ("sigma_n", "sigma_p", "eps_e_s", "k_p", "t_plus"),
-)
+TABLE9_GROUPS = parameters.TABLE9_GROUPS
 
 
 @dataclass(frozen=True, eq=False)

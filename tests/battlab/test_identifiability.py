@@ -1,4 +1,4 @@
-"""Orthogonalised ranking, natural-breaks grouping and collinearity indices (battlab.identifiability)."""
+"""Orthogonalised ranking, natural-breaks grouping and collinearity indices (battlab.design.identifiability)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from battlab import identifiability as ident
 from battlab import parameters
+from battlab.design import identifiability as ident
 
 
 def _random_S(seed: int, n: int = 40, p: int = 6) -> np.ndarray:

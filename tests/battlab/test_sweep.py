@@ -1,5 +1,5 @@
 """The library sensitivity sweep: store contents, 1 s sampling, resume after a kill, staleness, refusal, failures,
-local processes and a Dask LocalCluster (battlab.sweep, battlab.screening)."""
+local processes and a Dask LocalCluster (battlab.design.sweep, battlab.design.screening)."""
 
 from __future__ import annotations
 
@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 import battlab
-from battlab import simulation, sweep
-from battlab.design import information
+from battlab import simulation
+from battlab.design import information, sweep
 from battlab.design.conventional import CHARGE_C_RATES, DISCHARGE_C_RATES, conventional_profiles
-from battlab.screening import ModelScreen
+from battlab.design.screening import ModelScreen
 from protocols import Library, Profile, standard
 from protocols.errors import InputError
 
@@ -118,7 +118,7 @@ def test_store_for_another_cell_or_model_is_refused(serial_store: Path, monkeypa
         sweep.sweep(
             tiny_profiles(), CELL, serial_store, config=sweep.SweepConfig(names=NAMES[:2]), workers=1, progress=False
         )
-    monkeypatch.setattr(sweep, "MODEL_VERSION", "dfn-thermal-999")
+    monkeypatch.setattr(sweep.keys, "MODEL_VERSION", "dfn-thermal-999")
     with pytest.raises(InputError, match="made by 'battlab .* / dfn-thermal-1'.*stale"):
         sweep.SensitivityStore.open(serial_store)
     with pytest.raises(InputError, match="dfn-thermal-999"):

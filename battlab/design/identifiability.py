@@ -1,4 +1,4 @@
-"""Identifiability: orthogonalised sensitivity ranking, collinearity indices and parameter groups (issue 4, step 2).
+"""Identifiability: orthogonalised sensitivity ranking, collinearity indices and parameter groups (Fig. 4, Table 9).
 
 Successive orthogonalisation (the paper's Gram–Schmidt on S_yᵀ S_y): take the sensitivity column of largest norm,
 orthogonalise every other column against it, take the largest remaining one, and so on; the norm of a column
@@ -24,13 +24,8 @@ import scipy.linalg as sla
 
 from battlab import parameters
 
-PAPER_TABLE9: tuple[tuple[str, ...], ...] = (
-    ("R_s_n", "R_s_p"),
-    ("D_s_n", "D_s_p", "eps_e_n", "kappa_scale", "D_e_scale", "dlnf_scale"),
-    ("R_f_n", "k_n", "eps_e_p", "c_e0", "R_f_p"),
-    ("sigma_n", "sigma_p", "eps_e_s", "k_p", "t_plus"),
-)
-"""The paper's Table 9 (its cell, its normalisation): groups 1–4."""
+#: The paper's Table 9 (defined once, in :mod:`battlab.parameters`).
+PAPER_TABLE9 = parameters.TABLE9_GROUPS
 
 
 def successive_orthogonalisation(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

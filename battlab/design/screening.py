@@ -4,7 +4,7 @@
 :meth:`protocols.Library.screen`: it simulates the profile (no sensitivities) from its start SOC and flags it when
 the run leaves the cell's voltage window, exceeds the surface-temperature limit, or drives a particle surface to
 empty or full. :func:`constraint_flags` is the same test on an existing :class:`battlab.Result`; the sensitivity
-sweep (:mod:`battlab.sweep`) uses it so that the screen and the sweep agree by construction.
+sweep (:mod:`battlab.design.sweep`) uses it so that the screen and the sweep agree by construction.
 """
 
 from __future__ import annotations
