@@ -1,5 +1,5 @@
-"""``battlab sensitivity``, ``battlab groups``, ``battlab design``: library sensitivities, parameter groups, and the
-optimal selection of library profiles per group (issue 4)."""
+"""``battlab sensitivity``, ``battlab groups``, ``battlab design``: thin shells over :mod:`battlab.design.workflow`
+(library sensitivities, parameter groups, the optimal selection of library profiles per group)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,6 @@ import json
 from pathlib import Path
 
 import click
-import numpy as np
 
 from protocols.errors import InputError
 
@@ -67,35 +66,22 @@ def sensitivity(
     """
     from rich.console import Console
 
-    from battlab.cell import Cell
-    from battlab.design import sweep
-    from battlab.design.conventional import conventional_profiles
-    from protocols.library import Library
+    from battlab.design import workflow
+    from battlab.progress import RichBar
 
-    if workers is not None and scheduler is not None:
-        raise InputError("give --workers or --scheduler, not both")
-    if workers is not None and workers < 1:
-        raise InputError(f"--workers must be at least 1, got {workers}")
-    if not -40.0 <= ambient <= 80.0:
-        raise InputError(f"--ambient {ambient} degC is outside -40..80 degC")
-    cell = Cell.load(cell_name)
-    lib = Library.load(library_path)
-    profs = sweep.select_profiles(lib, _ids(ids), limit)
-    config = sweep.SweepConfig(ambient=ambient + 273.15)
-    conv = conventional_profiles(float(cell["Q_nom"])) if conventional else []
-    console = Console(stderr=True)
-    rep = sweep.sweep(
-        profs,
-        cell,
+    rep = workflow.sweep(
+        library_path,
+        cell_name,
         output,
-        config=config,
+        ids=_ids(ids),
+        limit=limit,
+        ambient_C=ambient,
+        conventional=conventional,
         workers=workers,
         scheduler=scheduler,
-        conventional=conv,
-        library_path=library_path,
-        progress=progress,
+        subscribers=[RichBar()] if progress else [],
     )
-    _print_sweep(console, rep)
+    _print_sweep(Console(stderr=True), rep)
 
 
 def _print_sweep(console, rep) -> None:  # noqa: ANN001 (rich console, SweepReport)
@@ -116,48 +102,9 @@ def _print_sweep(console, rep) -> None:  # noqa: ANN001 (rich console, SweepRepo
         console.print(f"… and {len(rep.failures) - 20} more failures (see the store)")
     if rep.flagged:
         console.print(f"{rep.flagged} profiles flagged by the constraint screen (excluded from the design)")
-    summary = {
-        k: getattr(rep, k)
-        for k in ("total", "reused", "computed", "ok", "flagged", "failed", "wall_seconds", "cpu_seconds")
-    }
-    summary["failures"] = {str(k): v for k, v in rep.failures.items()}
-    summary["flagged_ids"] = sorted(str(k) for k in rep.flags)
-    Path(rep.path).with_suffix(".summary.json").write_text(json.dumps(summary, indent=1))
+    from battlab.design.workflow import sweep_summary
 
-
-def _open_store(path: str):  # noqa: ANN202 (SensitivityStore)
-    from rich.console import Console
-
-    from battlab.design.sweep import SensitivityStore
-
-    store = SensitivityStore.open(path)
-    if store.source_changed():
-        Console(stderr=True).print(
-            f"[yellow]note[/yellow]: the model's source changed since {path} was computed (same model version "
-            f"{store.attrs['model_version']!r}); rerun `battlab sensitivity` to refresh stale profiles"
-        )
-    return store
-
-
-def _load_groups(spec: str | None, ranking, k: int, by: str) -> tuple[list[list[str]], str]:  # noqa: ANN001
-    """Groups from a JSON file, the paper's Table 9 ('paper'), or computed (None)."""
-    from battlab.design import identifiability
-
-    if spec is None:
-        return identifiability.group(ranking, k, by=by), f"computed (natural breaks, k = {k}, by {by})"
-    if spec == "paper":
-        return [list(g) for g in identifiability.PAPER_TABLE9], "the paper's Table 9"
-    path = Path(spec)
-    if not path.is_file():
-        raise InputError(f"--groups {spec}: no such file (give a groups JSON, or 'paper')")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not valid JSON ({exc})") from None
-    groups = data.get("groups") if isinstance(data, dict) else data
-    if not isinstance(groups, list) or not all(isinstance(g, list) and g for g in groups):
-        raise InputError(f"{path}: expected {{'groups': [[names…], …]}} or a list of lists of parameter names")
-    return [[str(n) for n in g] for g in groups], str(path)
+    Path(rep.path).with_suffix(".summary.json").write_text(json.dumps(sweep_summary(rep), indent=1))
 
 
 _NOISE_OPTION = click.option(
@@ -205,104 +152,58 @@ def groups(
     from rich.table import Table
 
     from battlab import parameters
-    from battlab.design import identifiability, information
-    from battlab.plots import identifiability as figs
+    from battlab.design import workflow
 
     console = Console()
-    store = _open_store(store_path)
-    with store:
-        info = information.load(store)
-        W = info.R if unweighted else info.W
-        ranking = identifiability.rank(W, info.names, info.ids, weighted=not unweighted)
-        if not 1 <= k <= len(info.names):
-            raise InputError(f"-k must be between 1 and {len(info.names)}, got {k}")
-        grp = identifiability.group(ranking, k, by=by)
-        G = np.einsum("lki,lkj->ij", W, W)
-        col = identifiability.collinearity(G, info.names, grp)
-        out = Path(out_dir) if out_dir else Path(store_path).resolve().parent
-        out.mkdir(parents=True, exist_ok=True)
-        stem = Path(store_path).stem
-        table = Table(
-            title=f"orthogonalised sensitivity ranking ({len(info)} profiles, "
-            f"{'weighted by 1/q' if not unweighted else 'unweighted'}; {len(info.excluded)} excluded)"
+    rep = workflow.groups(
+        store_path, k=k, by=by, out_dir=out_dir, perturb=perturb, profile_id=profile_id, unweighted=unweighted
+    )
+    _note(rep.note)
+    info, ranking, col = rep.info, rep.ranking, rep.collinearity
+    table = Table(
+        title=f"orthogonalised sensitivity ranking ({len(info)} profiles, "
+        f"{'weighted by 1/q' if rep.weighted else 'unweighted'}; {len(info.excluded)} excluded)"
+    )
+    for c in (
+        "rank",
+        "parameter",
+        "symbol",
+        "mean magnitude",
+        "stacked QR",
+        "group",
+        "paper (Table 9)",
+        "most collinear with",
+    ):
+        table.add_column(c, justify="right" if c in ("rank", "mean magnitude", "stacked QR") else "left")
+    ours = {n: g + 1 for g, names in enumerate(rep.groups) for n in names}
+    for r, i in enumerate(ranking.order, start=1):
+        n = info.names[i]
+        partner, cosv = col.partner[n]
+        table.add_row(
+            str(r),
+            n,
+            parameters.SPECS[n].symbol,
+            f"{ranking.mean[i]:.3e}",
+            f"{ranking.stacked[i]:.3e}",
+            str(ours[n]),
+            str(rep.paper.get(n, "-")),
+            f"{partner} ({cosv:+.3f})",
         )
-        for c in (
-            "rank",
-            "parameter",
-            "symbol",
-            "mean magnitude",
-            "stacked QR",
-            "group",
-            "paper (Table 9)",
-            "most collinear with",
-        ):
-            table.add_column(c, justify="right" if c in ("rank", "mean magnitude", "stacked QR") else "left")
-        paper = {r["parameter"]: r["paper"] for r in identifiability.compare_with_paper(grp)}
-        ours = {n: g + 1 for g, names in enumerate(grp) for n in names}
-        for r, i in enumerate(ranking.order, start=1):
-            n = info.names[i]
-            partner, cosv = col.partner[n]
-            table.add_row(
-                str(r),
-                n,
-                parameters.SPECS[n].symbol,
-                f"{ranking.mean[i]:.3e}",
-                f"{ranking.stacked[i]:.3e}",
-                str(ours[n]),
-                str(paper.get(n, "-")),
-                f"{partner} ({cosv:+.3f})",
-            )
-        console.print(table)
-        ct = Table(title="collinearity index γ (Brun 2001; > 10-15: hard to identify together)")
-        for c in ("group", "parameters", "γ group", "γ groups 1..k"):
-            ct.add_column(c)
-        for g, names in enumerate(grp):
-            ct.add_row(str(g + 1), ", ".join(names), f"{col.groups[g]:.3g}", f"{col.cumulative[g]:.3g}")
-        console.print(ct)
-        fig4 = figs.ranking_bars(ranking, grp, out / f"{stem}.ranking.png")
-        files = [str(fig4)]
-        if perturb:
-            files.append(
-                str(_perturbation_plot(store, info, grp, ranking, profile_id, out / f"{stem}.perturbation.png"))
-            )
-        data = {
-            "store": str(store_path),
-            "cell": store.attrs["cell_name"],
-            "by": by,
-            "groups": grp,
-            "paper_table9": [list(g) for g in identifiability.PAPER_TABLE9],
-            "comparison": identifiability.compare_with_paper(grp),
-            "ranking": ranking.to_dict(),
-            "collinearity": col.to_dict(),
-            "excluded": {str(k_): v for k_, v in info.excluded.items()},
-            "figures": files,
-        }
-        gj = out / f"{stem}.groups.json"
-        gj.write_text(json.dumps(data, indent=1, default=float))
-        console.print(f"wrote {gj} and {', '.join(files)}")
+    console.print(table)
+    ct = Table(title="collinearity index γ (Brun 2001; > 10-15: hard to identify together)")
+    for c in ("group", "parameters", "γ group", "γ groups 1..k"):
+        ct.add_column(c)
+    for g, names in enumerate(rep.groups):
+        ct.add_row(str(g + 1), ", ".join(names), f"{col.groups[g]:.3g}", f"{col.cumulative[g]:.3g}")
+    console.print(ct)
+    console.print(f"wrote {rep.path} and {', '.join(rep.figures)}")
 
 
-def _perturbation_plot(store, info, grp, ranking, profile_id, path: Path) -> Path:  # noqa: ANN001
-    """Fig. 5: the top parameter of each group set to θ̄ ∈ {0, 0.5, 1} on one profile (each value is a new cell:
-    the model is rebuilt for it, about 2 s)."""
-    from battlab.plots import identifiability as figs
-    from battlab.simulation import simulate
+def _note(note: str | None) -> None:
+    if note:
+        from rich.console import Console
 
-    cell = store.cell()
-    if profile_id is None:
-        drives = [m["id"] for m in info.meta if m["kind"] == "drive"]
-        profile_id = drives[len(drives) // 2] if drives else info.ids[0]
-    prof = store.profile(profile_id)
-    runs = []
-    for g, names in enumerate(grp, start=1):
-        rep = max(names, key=lambda n: ranking.mean[info.names.index(n)])
-        curves = []
-        for tb in (0.0, 0.5, 1.0):
-            res = simulate(cell.with_normalised(**{rep: tb}), prof)
-            curves.append((tb, res.t, res.voltage))
-        runs.append({"parameter": rep, "group": g, "curves": curves})
-    name = prof.params.get("name", "") if prof.params else ""
-    return figs.perturbation(runs, path, f"profile {profile_id} {name} (start SOC {prof.soc0})")
+        Console(stderr=True).print(f"[yellow]note[/yellow]: {note}")
 
 
 @click.command("design")
@@ -383,21 +284,10 @@ def design(
     Writes the plan TOML (whole experiment), one TOML per group, summary.json and <plan>.design.json beside it,
     and a figure of the relaxed weights.
     """
-    import time
-
     from rich.console import Console
 
-    from battlab.design import groups as gd
-    from battlab.design import identifiability, information
-    from battlab.design import plan as planmod
-    from battlab.design.criteria import Criterion
-    from battlab.noise import NoiseModel
-    from battlab.plots import identifiability as figs
+    from battlab.design import workflow
 
-    if M < 1:
-        raise InputError(f"-M must be at least 1, got {M}")
-    if budget is not None and budget <= 0:
-        raise InputError(f"--budget must be positive, got {budget}")
     costs = None
     if costs_file:
         try:
@@ -405,50 +295,28 @@ def design(
             costs = {str(k_): float(v) for k_, v in raw.items()}
         except (OSError, json.JSONDecodeError, AttributeError, TypeError, ValueError) as exc:
             raise InputError(f"{costs_file}: expected a JSON object {{profile id: cost}} ({exc})") from None
+    rep = workflow.design(
+        store_path,
+        output,
+        criterion=criterion,
+        M=M,
+        budget=budget,
+        cost=cost,
+        costs=costs,
+        k=k,
+        groups_spec=groups_spec,
+        cumulative=cumulative,
+        exact=exact,
+        include_flagged=include_flagged,
+        solver=solver,
+        singular=singular,
+        unweighted=unweighted,
+    )
+    _note(rep.note)
     console = Console()
-    store = _open_store(store_path)
-    with store:
-        t0 = time.perf_counter()
-        info = information.load(store, include_flagged=include_flagged)
-        if unweighted:
-            info = information.Information(info.ids, info.names, info.R, np.ones(len(info)), info.meta, info.excluded)
-        conv = information.conventional(store, None if not unweighted else NoiseModel(floor=1.0))
-        ranking = identifiability.rank(info.W, info.names, info.ids)
-        grp, source = _load_groups(groups_spec, ranking, k, "mean")
-        settings = gd.Settings(
-            M=M,
-            criterion=Criterion.of(criterion),
-            budget=budget,
-            cost=cost,
-            costs=costs,
-            cumulative=cumulative,
-            exact=exact,
-            solver=solver,
-            on_singular=singular,
-        )
-        designs = gd.design_groups(info, grp, settings, conv)
-        solve_seconds = time.perf_counter() - t0
-        meta_by_id = {m["id"]: m for m in info.meta}
-        files = planmod.write_plan(
-            designs,
-            store,
-            output,
-            criterion=settings.criterion.value,
-            solve_seconds=solve_seconds,
-            extra={
-                "groups_source": source,
-                "M": M,
-                "budget": budget,
-                "cost": cost,
-                "cumulative": cumulative,
-                "n_candidates": len(info),
-                "excluded": {str(k_): v for k_, v in info.excluded.items()},
-                "selected_profiles": {str(pid): meta_by_id[pid] for d in designs for pid in d.selected},
-            },
-        )
-        fig = figs.design_weights(designs, Path(output).with_suffix(".weights.png"))
-    _print_design(console, designs, meta_by_id, settings, source, len(info), solve_seconds)
-    console.print(f"wrote {files.plan}, {', '.join(str(p) for p in files.groups)}, {files.summary}, {fig}")
+    _print_design(console, rep.designs, rep.meta, rep.settings, rep.source, rep.n_candidates, rep.solve_seconds)
+    files = rep.files
+    console.print(f"wrote {files.plan}, {', '.join(str(p) for p in files.groups)}, {files.summary}, {rep.figure}")
 
 
 def _print_design(console, designs, meta, settings, source, n, seconds) -> None:  # noqa: ANN001

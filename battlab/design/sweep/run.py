@@ -16,6 +16,7 @@ from battlab.cell import Cell
 from battlab.design.sweep.keys import CONVENTIONAL, GROUP, SweepConfig, model_source_hash, profile_hash, result_key
 from battlab.design.sweep.store import SensitivityStore, group_name
 from battlab.design.sweep.task import Outcome, Task, run_task
+from battlab.progress import ProgressEvent, RichBar, Subscriber, emit
 from protocols.errors import InputError
 from protocols.profile import Profile
 
@@ -150,6 +151,7 @@ def sweep(
     conventional_rest_s: float = 3600.0,
     library_path: str | None = None,
     progress: bool = True,
+    subscribers: Sequence[Subscriber] = (),
     on_written: Callable[[Outcome], None] | None = None,
     connect_timeout_s: float = 10.0,
 ) -> SweepReport:
@@ -157,7 +159,8 @@ def sweep(
 
     Resumes: profiles whose stored key matches are reused; failed ones are retried. ``workers``: local
     processes (default: all cores); ``scheduler``: a Dask scheduler address or Client instead. ``on_written``
-    is called after each profile is on disk (tests use it to kill the process mid-sweep).
+    is called after each profile is on disk (tests use it to kill the process mid-sweep). Progress goes to
+    ``subscribers`` (``progress=True`` adds the console's bar).
     """
     t_wall = time.perf_counter()
     config = config or SweepConfig()
@@ -189,7 +192,10 @@ def sweep(
             if scheduler is not None
             else local_executor(workers or os.cpu_count() or 1)
         )
-        with _progress(progress, len(tasks), report.reused) as advance:
+        subs = [*subscribers, *([RichBar()] if progress else [])]
+        counts = {"ok": 0, "flagged": 0, "failed": 0}
+        emit(subs, ProgressEvent("sensitivities", "start", 0, len(tasks), f"({report.reused} reused)"))
+        try:
             for outcome in ex([t for t, _, _ in tasks]):
                 where, prof = by_key[(outcome.key, str(outcome.id))]
                 store.write(outcome, prof, where)
@@ -197,7 +203,13 @@ def sweep(
                 report.cpu_seconds += outcome.seconds
                 if on_written is not None:
                     on_written(outcome)
-                advance(outcome)
+                counts[outcome.status] = counts.get(outcome.status, 0) + 1
+                text = (
+                    f"ok {counts['ok']} flagged {counts['flagged']} failed {counts['failed']} ({report.reused} reused)"
+                )
+                emit(subs, ProgressEvent("sensitivities", "advance", report.computed, len(tasks), text))
+        finally:
+            emit(subs, ProgressEvent("sensitivities", "stop", report.computed, len(tasks)))
         for where in (GROUP, CONVENTIONAL):
             for pid, status in store.statuses(where).items():
                 if where == GROUP and str(pid) not in {str(p.id) for p in profs}:
@@ -231,49 +243,3 @@ def _warm(cell: Cell, config: SweepConfig) -> None:
 
     with contextlib.suppress(Exception):  # the workers then fall back to the CasADi stepper and say so
         solver.native_stepper(cell, config.mesh, config.isothermal)
-
-
-class _progress:
-    """A rich progress bar (or nothing) whose ``advance(outcome)`` counts ok / flagged / failed."""
-
-    def __init__(self, enabled: bool, total: int, reused: int) -> None:
-        self.enabled, self.total, self.reused = enabled, total, reused
-        self.counts = {"ok": 0, "flagged": 0, "failed": 0}
-
-    def __enter__(self) -> Callable[[Outcome], None]:
-        if not self.enabled:
-            return lambda o: None
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
-
-        self.bar = Progress(
-            TextColumn("sensitivities"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-            TextColumn("{task.description}"),
-        )
-        self.bar.start()
-        self.task = self.bar.add_task(f"({self.reused} reused)", total=self.total)
-
-        def advance(o: Outcome) -> None:
-            self.counts[o.status] = self.counts.get(o.status, 0) + 1
-            c = self.counts
-            self.bar.update(
-                self.task,
-                advance=1,
-                description=f"ok {c['ok']} flagged {c['flagged']} failed {c['failed']} ({self.reused} reused)",
-            )
-
-        return advance
-
-    def __exit__(self, *exc: object) -> None:
-        if self.enabled:
-            self.bar.stop()

@@ -1,0 +1,289 @@
+"""The design steps as functions on values: the library sweep, the parameter groups, the optimal selection.
+
+Each takes what a user has (a library, a cell, a sensitivity store) and returns a report value; results are
+written where the step's product belongs (the store, ``groups.json`` and figures, the plan). Nothing is printed:
+progress goes to ``subscribers`` (:mod:`battlab.progress`), and the command line renders the reports.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from battlab.cell import Cell
+from battlab.progress import Subscriber
+from protocols.errors import InputError
+
+
+def sweep(
+    library: str | Path,
+    cell: Cell | str,
+    output: str | Path,
+    *,
+    ids: Sequence[int] | None = None,
+    limit: int | None = None,
+    ambient_C: float = 25.0,
+    conventional: bool = True,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    subscribers: Sequence[Subscriber] = (),
+) -> Any:  # SweepReport
+    """Every profile of the library (or ``ids``/the first ``limit``) simulated with all 18 sensitivities into the
+    store ``output`` (resumable); with ``conventional`` also the conventional test set, the design's baseline."""
+    from battlab.design import sweep as sw
+    from battlab.design.conventional import conventional_profiles
+    from protocols.library import Library
+
+    if workers is not None and scheduler is not None:
+        raise InputError("give workers or a scheduler, not both")
+    if workers is not None and workers < 1:
+        raise InputError(f"workers must be at least 1, got {workers}")
+    if not -40.0 <= ambient_C <= 80.0:
+        raise InputError(f"ambient {ambient_C} degC is outside -40..80 degC")
+    cell = cell if isinstance(cell, Cell) else Cell.load(cell)
+    lib = Library.load(library)
+    profs = sw.select_profiles(lib, list(ids) if ids else None, limit)
+    conv = conventional_profiles(float(cell["Q_nom"])) if conventional else []
+    return sw.sweep(
+        profs,
+        cell,
+        output,
+        config=sw.SweepConfig(ambient=ambient_C + 273.15),
+        workers=workers,
+        scheduler=scheduler,
+        conventional=conv,
+        library_path=str(library),
+        progress=False,
+        subscribers=subscribers,
+    )
+
+
+def sweep_summary(rep: Any) -> dict[str, Any]:
+    """The machine-readable summary of a sweep report."""
+    keys = ("total", "reused", "computed", "ok", "flagged", "failed", "wall_seconds", "cpu_seconds")
+    out: dict[str, Any] = {k: getattr(rep, k) for k in keys}
+    out["failures"] = {str(k): v for k, v in rep.failures.items()}
+    out["flagged_ids"] = sorted(str(k) for k in rep.flags)
+    return out
+
+
+def open_store(path: str | Path) -> tuple[Any, str | None]:
+    """The store and, when the model's source changed since it was computed, a note saying so."""
+    from battlab.design.sweep import SensitivityStore
+
+    store = SensitivityStore.open(path)
+    note = None
+    if store.source_changed():
+        note = (
+            f"the model's source changed since {path} was computed (same model version "
+            f"{store.attrs['model_version']!r}); rerun `battlab sensitivity` to refresh stale profiles"
+        )
+    return store, note
+
+
+def load_groups(spec: str | None, ranking: Any, k: int, by: str) -> tuple[list[list[str]], str]:
+    """Groups from a JSON file, the paper's Table 9 (``"paper"``), or computed (None)."""
+    from battlab.design import identifiability
+
+    if spec is None:
+        return identifiability.group(ranking, k, by=by), f"computed (natural breaks, k = {k}, by {by})"
+    if spec == "paper":
+        return [list(g) for g in identifiability.PAPER_TABLE9], "the paper's Table 9"
+    path = Path(spec)
+    if not path.is_file():
+        raise InputError(f"--groups {spec}: no such file (give a groups JSON, or 'paper')")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not valid JSON ({exc})") from None
+    groups = data.get("groups") if isinstance(data, dict) else data
+    if not isinstance(groups, list) or not all(isinstance(g, list) and g for g in groups):
+        raise InputError(f"{path}: expected {{'groups': [[names…], …]}} or a list of lists of parameter names")
+    return [[str(n) for n in g] for g in groups], str(path)
+
+
+@dataclass(frozen=True)
+class GroupsReport:
+    """Ranking, groups and collinearity of a store's profiles, and the files written."""
+
+    info: Any  # information.Information
+    ranking: Any  # identifiability.Ranking
+    groups: list[list[str]]
+    collinearity: Any  # identifiability.Collinearity
+    paper: Mapping[str, Any]  # parameter -> its Table 9 group
+    weighted: bool
+    data: Mapping[str, Any]  # groups.json
+    path: Path  # groups.json
+    figures: list[str]
+    note: str | None = None
+
+
+def groups(
+    store_path: str | Path,
+    *,
+    k: int = 4,
+    by: str = "mean",
+    out_dir: str | Path | None = None,
+    perturb: bool = True,
+    profile_id: int | None = None,
+    unweighted: bool = False,
+) -> GroupsReport:
+    """Rank the parameters by orthogonalised sensitivity (Fig. 4), group them (Table 9), write ``groups.json``
+    and the figures (Fig. 4 and, with ``perturb``, Fig. 5)."""
+    from battlab.design import identifiability, information
+    from battlab.plots import identifiability as figs
+
+    store, note = open_store(store_path)
+    with store:
+        info = information.load(store)
+        W = info.R if unweighted else info.W
+        ranking = identifiability.rank(W, info.names, info.ids, weighted=not unweighted)
+        if not 1 <= k <= len(info.names):
+            raise InputError(f"-k must be between 1 and {len(info.names)}, got {k}")
+        grp = identifiability.group(ranking, k, by=by)
+        G = np.einsum("lki,lkj->ij", W, W)
+        col = identifiability.collinearity(G, info.names, grp)
+        out = Path(out_dir) if out_dir else Path(store_path).resolve().parent
+        out.mkdir(parents=True, exist_ok=True)
+        stem = Path(store_path).stem
+        comparison = identifiability.compare_with_paper(grp)
+        files = [str(figs.ranking_bars(ranking, grp, out / f"{stem}.ranking.png"))]
+        if perturb:
+            files.append(
+                str(perturbation_plot(store, info, grp, ranking, profile_id, out / f"{stem}.perturbation.png"))
+            )
+        data = {
+            "store": str(store_path),
+            "cell": store.attrs["cell_name"],
+            "by": by,
+            "groups": grp,
+            "paper_table9": [list(g) for g in identifiability.PAPER_TABLE9],
+            "comparison": comparison,
+            "ranking": ranking.to_dict(),
+            "collinearity": col.to_dict(),
+            "excluded": {str(k_): v for k_, v in info.excluded.items()},
+            "figures": files,
+        }
+        gj = out / f"{stem}.groups.json"
+        gj.write_text(json.dumps(data, indent=1, default=float))
+    paper = {r["parameter"]: r["paper"] for r in comparison}
+    return GroupsReport(info, ranking, grp, col, paper, not unweighted, data, gj, files, note)
+
+
+def perturbation_plot(store: Any, info: Any, grp: Any, ranking: Any, profile_id: int | None, path: Path) -> Path:
+    """Fig. 5: the top parameter of each group set to θ̄ ∈ {0, 0.5, 1} on one profile (each value is a new cell:
+    the model is rebuilt for it, about 2 s)."""
+    from battlab.plots import identifiability as figs
+    from battlab.simulation import simulate
+
+    cell = store.cell()
+    if profile_id is None:
+        drives = [m["id"] for m in info.meta if m["kind"] == "drive"]
+        profile_id = drives[len(drives) // 2] if drives else info.ids[0]
+    prof = store.profile(profile_id)
+    runs = []
+    for g, names in enumerate(grp, start=1):
+        rep = max(names, key=lambda n: ranking.mean[info.names.index(n)])
+        curves = []
+        for tb in (0.0, 0.5, 1.0):
+            res = simulate(cell.with_normalised(**{rep: tb}), prof)
+            curves.append((tb, res.t, res.voltage))
+        runs.append({"parameter": rep, "group": g, "curves": curves})
+    name = prof.params.get("name", "") if prof.params else ""
+    return figs.perturbation(runs, path, f"profile {profile_id} {name} (start SOC {prof.soc0})")
+
+
+@dataclass(frozen=True)
+class DesignReport:
+    """The designs per group and what was written."""
+
+    designs: list[Any]  # groups.GroupDesign
+    meta: Mapping[Any, Mapping[str, Any]]  # profile id -> its metadata
+    settings: Any  # groups.Settings
+    source: str  # where the groups came from
+    n_candidates: int
+    solve_seconds: float
+    files: Any  # plan.PlanFiles
+    figure: Path
+    note: str | None = None
+
+
+def design(
+    store_path: str | Path,
+    output: str | Path,
+    *,
+    criterion: str = "D",
+    M: int = 5,
+    budget: float | None = None,
+    cost: str = "duration",
+    costs: Mapping[str, float] | None = None,
+    k: int = 4,
+    groups_spec: str | None = None,
+    cumulative: bool = True,
+    exact: bool = False,
+    include_flagged: bool = False,
+    solver: str | None = None,
+    singular: str = "project",
+    unweighted: bool = False,
+) -> DesignReport:
+    """Select ``M`` library profiles per parameter group (convex relaxation, rounding, checks; eqs. 26–35) and
+    write the plan TOML (whole experiment), one TOML per group, ``summary.json`` and a figure of the weights."""
+    from battlab.design import groups as gd
+    from battlab.design import identifiability, information
+    from battlab.design import plan as planmod
+    from battlab.design.criteria import Criterion
+    from battlab.noise import NoiseModel
+    from battlab.plots import identifiability as figs
+
+    if M < 1:
+        raise InputError(f"-M must be at least 1, got {M}")
+    if budget is not None and budget <= 0:
+        raise InputError(f"--budget must be positive, got {budget}")
+    store, note = open_store(store_path)
+    with store:
+        t0 = time.perf_counter()
+        info = information.load(store, include_flagged=include_flagged)
+        if unweighted:
+            info = information.Information(info.ids, info.names, info.R, np.ones(len(info)), info.meta, info.excluded)
+        conv = information.conventional(store, None if not unweighted else NoiseModel(floor=1.0))
+        ranking = identifiability.rank(info.W, info.names, info.ids)
+        grp, source = load_groups(groups_spec, ranking, k, "mean")
+        settings = gd.Settings(
+            M=M,
+            criterion=Criterion.of(criterion),
+            budget=budget,
+            cost=cost,
+            costs=dict(costs) if costs is not None else None,
+            cumulative=cumulative,
+            exact=exact,
+            solver=solver,
+            on_singular=singular,
+        )
+        designs = gd.design_groups(info, grp, settings, conv)
+        solve_seconds = time.perf_counter() - t0
+        meta_by_id = {m["id"]: m for m in info.meta}
+        files = planmod.write_plan(
+            designs,
+            store,
+            output,
+            criterion=settings.criterion.value,
+            solve_seconds=solve_seconds,
+            extra={
+                "groups_source": source,
+                "M": M,
+                "budget": budget,
+                "cost": cost,
+                "cumulative": cumulative,
+                "n_candidates": len(info),
+                "excluded": {str(k_): v for k_, v in info.excluded.items()},
+                "selected_profiles": {str(pid): meta_by_id[pid] for d in designs for pid in d.selected},
+            },
+        )
+        fig = figs.design_weights(designs, Path(output).with_suffix(".weights.png"))
+    return DesignReport(designs, meta_by_id, settings, source, len(info), solve_seconds, files, fig, note)
