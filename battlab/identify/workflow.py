@@ -1,0 +1,290 @@
+"""Identification and validation as functions on values: ``fit`` and ``validate``.
+
+``fit`` takes logged data (our run logs, BDF CSV, Panasonic ``.mat``) and a start cell: a slow test (|I| ≤ C/10
+for at least 5 h) is the OCV test for the equilibrium fit (eqs. 10–21); the others are dynamic data for the
+weighted, group-wise Levenberg–Marquardt fit (eqs. 41–46). ``validate`` scores cells on held-out data. Both
+return report values that know how to write their products (the BPX cell and ``summary.json``; figures); they
+print nothing: stage results go to an ``on_stage`` callback and load warnings come back in the report.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from battlab.cell import Cell
+from protocols.errors import InputError
+
+
+def is_ocv_test(data: Any, q_nom: float) -> bool:
+    """A slow test: |I| ≤ C/10 (5 % margin) for at least 5 h."""
+    dur = float(data.t[-1] - data.t[0])
+    return float(np.max(np.abs(data.current))) <= 0.1 * q_nom * 1.05 and dur >= 5 * 3600
+
+
+def load_all(paths: Sequence[str | Path], *, fix_sign: bool = False) -> tuple[list[Any], list[str]]:
+    """Logged data from files, and the warnings their readers raised (as text)."""
+    from battlab.io.data import load_data
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        loaded = [load_data(p, fix_sign=fix_sign) for p in paths]
+    return loaded, [str(w.message) for w in caught]
+
+
+def plan_groups(plan: Path) -> list[tuple[list[str], set[str]]]:
+    """Groups (parameters, selected profile ids) of a design plan: its ``summary.json`` beside it, else the
+    plan's profile steps labelled 'group N' with the Table 9 groups."""
+    from battlab.parameters import TABLE9_GROUPS
+    from protocols.protocol import ProfileStep, Protocol
+
+    proto = Protocol.load(plan)
+    summary = plan.with_name("summary.json")
+    if summary.is_file():
+        try:
+            groups = json.loads(summary.read_text())["groups"]
+            return [(list(g["parameters"]), {str(s) for s in g["selected"]}) for g in groups]
+        except (KeyError, TypeError, json.JSONDecodeError) as exc:
+            raise InputError(f"{summary}: expected the design summary with 'groups' ({exc})") from None
+    out: list[tuple[list[str], set[str]]] = [(list(g), set()) for g in TABLE9_GROUPS]
+    for s in proto.steps:
+        if isinstance(s, ProfileStep):
+            label = s.label.lower()
+            k = int(label.split("group", 1)[1].split()[0].strip(":")) - 1 if "group" in label else 0
+            if 0 <= k < len(out):
+                out[k][1].add(str(s.profile.id))
+    return out
+
+
+def stages(params: str, plan: str | Path | None, experiments: list[Any]) -> list[Any]:
+    """Stages of the cumulative fit: from the plan's design summary, or ``params`` (table9 | all | NAMES)."""
+    from battlab import parameters
+    from battlab.identify.fit import Stage
+
+    if plan is not None:
+        out = []
+        used: set[str] = set()
+        for names, selected in plan_groups(Path(plan)):
+            exps = tuple(e for e in experiments if str(e.profile.params.get("library_id", e.name)) in selected)
+            used |= {e.name for e in exps}
+            out.append(Stage(tuple(names), exps))
+        rest = tuple(e for e in experiments if e.name not in used)
+        if out and rest:
+            out[0] = Stage(out[0].names, out[0].experiments + rest)
+        return out
+    p = params.strip()
+    if p == "table9":
+        return [Stage(g, tuple(experiments) if k == 0 else ()) for k, g in enumerate(parameters.TABLE9_GROUPS)]
+    names = list(parameters.NAMES) if p == "all" else [s.strip() for s in p.split(",") if s.strip()]
+    return [Stage(parameters.check_names(names), tuple(experiments))]
+
+
+@dataclass
+class FitReport:
+    """A fit's outcome: the identified cell, the machine-readable summary, the BPX metadata, the stages."""
+
+    cell: Cell
+    summary: dict[str, Any]
+    extra: dict[str, Any]
+    results: list[Any] = field(default_factory=list)  # identify.fit.FitResult per stage
+    equilibrium: Any = None  # identify.equilibrium result, when an OCV test was given
+    equilibrium_data: str = ""  # the name of that OCV test
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def last(self) -> Any:
+        return self.results[-1] if self.results else None
+
+    def write(self, output: str | Path) -> tuple[Path, Path]:
+        """The BPX cell (intervals and fit report under "User-defined") and ``summary.json`` beside it."""
+        out = Path(output)
+        self.cell.renamed(out.name.removesuffix(".json").removesuffix(".bpx")).to_bpx(out, **self.extra)
+        summary_path = out.with_name("summary.json")
+        summary_path.write_text(json.dumps(self.summary, indent=2, default=json_default))
+        return out, summary_path
+
+
+def fit(
+    data: Sequence[str | Path],
+    cell: Cell | str,
+    *,
+    plan: str | Path | None = None,
+    params: str = "table9",
+    ocp_terms: int = 0,
+    rated_capacity: float | None = None,
+    soc0: float | None = None,
+    dt: float = 1.0,
+    max_iter: int = 40,
+    fix_sign: bool = False,
+    on_stage: Callable[[int, Any], None] | None = None,
+) -> FitReport:
+    """Identify the cell's parameters from logged data: equilibrium from an OCV test, then the dynamic
+    parameters by weighted LM, group by group and cumulatively (stages from ``plan`` or ``params``)."""
+    from battlab.identify import fit as F
+    from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
+    from battlab.identify.experiments import experiments_from_data
+    from battlab.identify.forward import ForwardModel
+
+    cell = cell if isinstance(cell, Cell) else Cell.load(cell)
+    loaded, warned = load_all(data, fix_sign=fix_sign)
+    ocv = [d for d in loaded if is_ocv_test(d, float(cell["Q_nom"]))]
+    dyn = [d for d in loaded if d not in ocv]
+    summary: dict[str, Any] = {"parameters": {}, "rmse_mV": {}, "converged": True}
+    extra: dict[str, Any] = {}
+    report = FitReport(cell, summary, extra, warnings=warned)
+    if ocv:
+        d = ocv[0]
+        eq = fit_equilibrium(
+            ocv_curve(d.t, d.current, d.voltage, source=d.source),
+            cell,
+            ocp_terms=ocp_terms,
+            rated_capacity=rated_capacity,
+        )
+        cell = eq.cell
+        rep = eq.report()
+        summary["equilibrium"] = rep
+        summary["rmse_mV"][d.name] = eq.rmse_mV
+        summary["converged"] = eq.converged
+        for k in ("eps_s_n", "eps_s_p", "n_Li"):
+            summary["parameters"][k] = {"value": rep[k], "ci95": [None, None], "at_bound": False}
+        extra["equilibrium"] = {k: v for k, v in rep.items() if not isinstance(v, str)}
+        report.equilibrium, report.equilibrium_data = eq, d.name
+    elif rated_capacity is not None:
+        cell = cell.with_values(Q_nom=rated_capacity)
+    if dyn:
+        exps = [e for d in dyn for e in experiments_from_data(d, cell, dt=dt, soc0=soc0)]
+        fm = ForwardModel(cell, v_margin=0.15)
+        results = F.fit_groupwise(
+            cell, stages(params, plan, exps), options=F.Options(max_nfev=max_iter), forward=fm, progress=on_stage
+        )
+        report.results = results
+        cell = results[-1].cell
+        _summarise_dynamic(results, summary, extra)
+    report.cell = cell
+    return report
+
+
+def _summarise_dynamic(results: list[Any], summary: dict[str, Any], extra: dict[str, Any]) -> None:
+    last = results[-1]
+    st = last.statistics
+    summary["converged"] = bool(summary["converged"] and all(r.convergence.converged for r in results))
+    for e in st.estimates:
+        summary["parameters"][e.name] = {
+            "value": e.value,
+            "ci95": list(e.ci95) if e.ci95 else [None, None],
+            "at_bound": e.at_bound is not None,
+            "identifiable": e.identifiable,
+            "set_identified": e.set_identified,
+        }
+    summary["rmse_mV"].update(last.rmse_mV)
+    summary["stages"] = [r.report() for r in results]
+    extra["confidence_intervals"] = {e.name: list(e.ci95) for e in st.estimates if e.ci95}
+    if st.invariants:
+        extra["invariants"] = {
+            i.name: {"value": i.value, "ci95": list(i.ci95), "definition": i.definition} for i in st.invariants
+        }
+    if st.unidentifiable:
+        extra["not_identifiable"] = list(st.unidentifiable)
+        extra["null_space"] = [dict(d) for d in st.null_space]
+    extra["at_bound"] = {e.name: e.at_bound is not None for e in st.estimates}
+    extra["fit_report"] = {
+        "converged": summary["converged"],
+        "iterations": last.convergence.iterations,
+        "cost": last.convergence.cost,
+        "s2": st.s2,
+        "rmse_mV": last.rmse_mV,
+        "reason": last.convergence.reason,
+    }
+
+
+def stage_figures(r: Any, prefix: Path) -> list[Path]:
+    """Fig. 7 for one stage: CDF of |voltage error| before and after, and the correlation matrix."""
+    from battlab.identify.statistics import correlation
+    from battlab.identify.validation import plot_cdf, plot_correlation
+
+    out = [Path(f"{prefix}.error_cdf.png")]
+    plot_cdf(
+        {"before": r.errors_before_mV, "after": r.errors_after_mV},
+        out[0],
+        f"stage {r.stage}: |voltage error| before and after",
+    )
+    st = r.statistics
+    corr = st.correlation if st.correlation is not None else correlation(st.covariance_identifiable)
+    if corr is not None:
+        out.append(Path(f"{prefix}.correlation.png"))
+        plot_correlation(st.names, corr, out[-1], f"stage {r.stage}: parameter correlation")
+    return out
+
+
+def json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    return str(obj)
+
+
+@dataclass
+class ValidationReport:
+    """RMSE [mV] per cell and data set, the errors, and each data set's predictions."""
+
+    table: dict[str, dict[str, float]]
+    errors: dict[str, np.ndarray]
+    predictions: dict[str, tuple[Any, dict[str, np.ndarray]]]
+    warnings: list[str] = field(default_factory=list)
+
+    def write(self, outdir: str | Path) -> Path:
+        """Figures (Figs. 7 and 9) and ``summary.json`` in ``outdir``."""
+        from battlab.identify.validation import plot_cdf, plot_validation
+
+        outdir = Path(outdir)
+        outdir.mkdir(parents=True, exist_ok=True)
+        for name, (e, preds) in self.predictions.items():
+            plot_validation(e, preds, outdir / f"{name.replace('#', '_')}.png")
+        plot_cdf(self.errors, outdir / "error_cdf.png", "validation: |voltage error|")
+        path = outdir / "summary.json"
+        path.write_text(json.dumps({"rmse_mV": self.table}, indent=2))
+        return path
+
+
+def cell_label(spec: str) -> str:
+    return Path(spec).name.removesuffix(".json").removesuffix(".bpx") if spec.endswith(".json") else spec
+
+
+def validate(
+    data: Sequence[str | Path],
+    cells: Sequence[str],
+    *,
+    soc0: float | None = None,
+    dt: float = 1.0,
+    fix_sign: bool = False,
+) -> ValidationReport:
+    """The voltage RMSE of each cell on each data set (predictions from the data's start state)."""
+    from battlab.identify.experiments import experiments_from_data
+    from battlab.identify.fit import predict
+    from battlab.identify.forward import ForwardModel
+
+    loaded, warned = load_all(data, fix_sign=fix_sign)
+    table: dict[str, dict[str, float]] = {}
+    errors: dict[str, np.ndarray] = {}
+    per_exp: dict[str, tuple[Any, dict[str, np.ndarray]]] = {}
+    for spec in cells:
+        cell = Cell.load(spec)
+        label = cell_label(spec)
+        fm = ForwardModel(cell, v_margin=0.15)
+        table[label] = {}
+        errs = []
+        for d in loaded:
+            for e in experiments_from_data(d, cell, dt=dt, soc0=soc0):
+                p = predict(fm, cell, e)
+                table[label][e.name] = float(1e3 * np.sqrt(np.nanmean((p - e.voltage) ** 2)))
+                errs.append(1e3 * (p - e.voltage))
+                per_exp.setdefault(e.name, (e, {}))[1][label] = p
+        errors[label] = np.concatenate(errs)
+    return ValidationReport(table, errors, per_exp, warned)
