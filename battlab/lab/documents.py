@@ -165,6 +165,35 @@ class CatalogSink(Subscriber):
         self.catalog.update(self.run_id, status=doc.status, reason=doc.reason, rows=int(self._rows()))
 
 
+class StepRecords(Subscriber):
+    """The run's step records (for its summary and a resume), built from the step documents."""
+
+    def __init__(self, previous: Sequence[dict[str, Any]] = ()) -> None:
+        self.records: list[dict[str, Any]] = [dict(r) for r in previous]
+
+    def step_start(self, doc: StepStart) -> None:
+        e = doc.entry
+        self.records.append(
+            {
+                "step_count": doc.step_count,
+                "entry": e.entry,
+                "step_index": e.step_index,
+                "trial": e.trial,
+                "kind": doc.kind,
+                "label": e.label,
+                "status": "running",
+                "row_start": doc.row,
+                "t_start": doc.t_s,
+            }
+        )
+
+    def step_stop(self, doc: StepStop) -> None:
+        for rec in reversed(self.records):
+            if rec["step_count"] == doc.step_count:
+                rec.update(status=doc.status, ended_by=doc.ended_by, row_end=doc.row, t_end=doc.t_s)
+                return
+
+
 def emit(subscribers: Sequence[Subscriber], name: str, doc: Any) -> None:
     """Deliver ``doc`` to every subscriber's ``name`` handler, in order."""
     for s in subscribers:
@@ -177,6 +206,7 @@ __all__ = [
     "RunStart",
     "RunStop",
     "StepStart",
+    "StepRecords",
     "StepStop",
     "Subscriber",
     "emit",

@@ -22,7 +22,6 @@ has a clock, else the run clock's; ``Test Time / s`` counts from the run's origi
 from __future__ import annotations
 
 import contextlib
-import enum
 import logging
 import math
 import time
@@ -30,14 +29,16 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from battlab.lab.documents import RunStart, RunStop, StepStart, StepStop, Subscriber, emit
+from battlab.lab.calls import InstrumentCalls
+from battlab.lab.documents import RunStart, RunStop, StepRecords, StepStart, StepStop, Subscriber, emit
 from battlab.lab.limits import Envelope
 from battlab.lab.logfile import COLUMNS
 from battlab.lab.plan import Plan, PlanEntry
+from battlab.lab.run_state import TRANSITIONS, Abort, RunState, RunStats, StopRequested
 from battlab.lab.safety import Shutdown, check_sample, safe_shutdown
 from battlab.lab.steps import ResistanceEstimate, Sample, executor_for
 from drivers.clock import Clock
-from drivers.errors import CommunicationError, InstrumentError, InstrumentFault
+from drivers.errors import InstrumentError
 from drivers.interfaces import Chamber, Cycler
 from protocols.errors import InputError
 
@@ -48,85 +49,6 @@ T = TypeVar("T")
 CURRENT_RESOLUTION_A = 1e-5
 #: measured vs programmed current: beyond max(abs, rel × |I|) the output is suspected off
 MISMATCH_A, MISMATCH_REL = 0.05, 0.05
-
-
-class RunState(enum.Enum):
-    IDLE = "idle"
-    PREFLIGHT = "preflight"
-    RUNNING = "running"
-    STOPPING = "stopping"
-    COMPLETED = "completed"
-    ABORTED = "aborted"
-    STOPPED = "stopped"
-
-
-_TRANSITIONS: dict[RunState, frozenset[RunState]] = {
-    RunState.IDLE: frozenset({RunState.PREFLIGHT}),
-    RunState.PREFLIGHT: frozenset({RunState.RUNNING, RunState.STOPPING}),
-    RunState.RUNNING: frozenset({RunState.STOPPING, RunState.COMPLETED}),
-    RunState.STOPPING: frozenset({RunState.ABORTED, RunState.STOPPED}),
-    RunState.COMPLETED: frozenset(),
-    RunState.ABORTED: frozenset(),
-    RunState.STOPPED: frozenset(),
-}
-
-
-class Abort(Exception):
-    """Ends the run: ``kind`` (``safety``, ``protection``, ``chamber``, ``communication``, ``instrument``,
-    ``preflight``, ``regulation``, ``internal``) and a message naming the cause."""
-
-    def __init__(self, kind: str, message: str) -> None:
-        super().__init__(f"{kind}: {message}")
-        self.kind = kind
-        self.message = message
-
-
-class StopRequested(Exception):
-    """The operator asked to stop (Ctrl-C)."""
-
-
-@dataclass
-class RunStats:
-    """Counters for the summary and the benchmark (wall times in s)."""
-
-    samples: int = 0
-    current_sets: int = 0
-    retries: int = 0
-    late_samples: int = 0
-    max_late_s: float = 0.0
-    sum_late_s: float = 0.0
-    loop_wall_s: float = 0.0
-    io_wall_s: float = 0.0
-    sleep_wall_s: float = 0.0
-    sink_wall_s: float = 0.0
-    #: from the instant a new current took effect (instrument's stamp) to the next sample's stamp
-    max_set_to_sample_s: float = 0.0
-    sum_set_to_sample_s: float = 0.0
-    set_to_sample_n: int = 0
-    resistance_ohm: float = math.nan
-    notes: list[str] = field(default_factory=list)
-
-    @property
-    def overhead_per_sample_s(self) -> float:
-        """Wall time per sample the runner spends outside instrument calls and sleeps (incl. logging)."""
-        return max(0.0, self.loop_wall_s - self.io_wall_s - self.sleep_wall_s) / max(1, self.samples)
-
-    def to_dict(self) -> dict[str, Any]:
-        n = max(1, self.samples)
-        return {
-            "samples": self.samples,
-            "current_sets": self.current_sets,
-            "retries": self.retries,
-            "late_samples": self.late_samples,
-            "mean_late_s": self.sum_late_s / n,
-            "max_late_s": self.max_late_s,
-            "overhead_per_sample_s": self.overhead_per_sample_s,
-            "io_per_sample_s": self.io_wall_s / n,
-            "mean_set_to_sample_s": self.sum_set_to_sample_s / max(1, self.set_to_sample_n),
-            "max_set_to_sample_s": self.max_set_to_sample_s,
-            "resistance_ohm": self.resistance_ohm,
-            "notes": list(self.notes),
-        }
 
 
 @dataclass
@@ -169,15 +91,16 @@ class RunEngine:
         self.config = config
         self.env = config.envelope
         self.clock = config.clock
-        self.subscribers = list(subscribers)
+        self.records = StepRecords(config.previous_steps)
+        self.subscribers = [*subscribers, self.records]
         self.entries = plan.entries()
         self.state = RunState.IDLE
         self.stats = RunStats()
+        self.calls = InstrumentCalls(self.options.comm_retries, self.options.backoff_s, self.clock, self.stats)
         self.reason: str | None = None
         self.shutdown: Shutdown | None = None
         self.resistance = ResistanceEstimate()
         self.identities: dict[str, str] = {}
-        self.step_records: list[dict[str, Any]] = []
         self._stop_reason: str | None = None
         self._output_on = False
         self._i_cmd = 0.0
@@ -188,20 +111,18 @@ class RunEngine:
         self._rows = config.row0
         self._q_Ah = config.net_capacity0_Ah
         self._rest_voltage = math.nan
-        self._current: tuple[PlanEntry, int, Any] | None = None
+        self._current: tuple[PlanEntry, int, Any, int] | None = None  # entry, step count, executor, first row
         self._current_announced = False
         self._pending_stop: tuple[PlanEntry, int, str | None, float | None, int] | None = None
         self._next_chamber = -math.inf
         self._next_protection = -math.inf
         self._mismatches = 0
         self._has_T = True
-        self._in_loop = False
-        self._t_applied: float | None = None
         self._t_applied: float | None = None
 
     # -- state machine -----------------------------------------------------------------------------------
     def _to(self, new: RunState) -> None:
-        if new not in _TRANSITIONS[self.state]:
+        if new not in TRANSITIONS[self.state]:
             raise RuntimeError(f"run engine: illegal transition {self.state.value} -> {new.value}")
         log.info("run state: %s -> %s", self.state.value, new.value)
         self.state = new
@@ -246,7 +167,7 @@ class RunEngine:
         try:
             self._announce_current()
             if self._current is not None:
-                entry, count, _ = self._current
+                entry, count, _, _ = self._current
                 t_last = self._last.t if self._last else None
                 self._record_step_stop(entry, count, status.value, reason, t_last, self._rows)
                 self._current = None
@@ -268,60 +189,12 @@ class RunEngine:
         finally:
             self.stats.sink_wall_s += time.perf_counter() - w0
 
-    # -- instrument calls --------------------------------------------------------------------------------
-    def _call(self, what: str, fn: Callable[..., T], *args: Any) -> T:
-        """An instrument call with bounded retries (doubling back-off on the run clock) on link errors."""
-        delay = self.options.backoff_s
-        w0 = time.perf_counter() if self._in_loop else None
-        try:
-            for attempt in range(self.options.comm_retries + 1):
-                try:
-                    return fn(*args)
-                except CommunicationError as exc:
-                    if attempt == self.options.comm_retries:
-                        raise Abort("communication", f"{what} failed after {attempt + 1} attempts: {exc}") from exc
-                    self.stats.retries += 1
-                    log.warning("%s failed (%s); retry %d in %g s", what, exc, attempt + 1, delay)
-                    self._resync(fn)
-                    self.clock.sleep(delay)
-                    delay *= 2
-                except InstrumentFault as exc:
-                    raise Abort("instrument", f"{what}: {exc}") from exc
-                except InstrumentError as exc:
-                    raise Abort("instrument", f"{what}: {exc}") from exc
-            raise AssertionError("unreachable")
-        finally:
-            if w0 is not None:
-                self.stats.io_wall_s += time.perf_counter() - w0
-
-    @staticmethod
-    def _resync(fn: Callable[..., Any]) -> None:
-        """After the driver gave up on an exchange, drop a late reply still on its way (reconnect the link) so
-        that the retry does not read it as its own."""
-        adapter = getattr(getattr(fn, "__self__", None), "adapter", None)
-        recover = getattr(adapter, "recover", None)
-        if callable(recover):
-            try:
-                recover()
-            except (InstrumentError, OSError) as exc:
-                log.warning("link resync failed: %s", exc)
-
-    def _optional(self, what: str, fn: Callable[..., Any], *args: Any) -> bool:
-        """A setting the dialect may not support (InputError): noted, not fatal."""
-        try:
-            self._call(what, fn, *args)
-            return True
-        except InputError as exc:
-            self.stats.notes.append(f"{what}: not available ({exc}); runner-side checks only")
-            log.warning("%s: not available: %s", what, exc)
-            return False
-
     # -- PREFLIGHT ---------------------------------------------------------------------------------------
     def _preflight(self) -> None:
         cyc, cha, env = self.cycler, self.chamber, self.env
         self.identities = {
-            "cycler": self._call("cycler identity", cyc.identify),
-            "chamber": self._call("chamber identity", cha.identify),
+            "cycler": self.calls.call("cycler identity", cyc.identify),
+            "chamber": self.calls.call("chamber identity", cha.identify),
         }
         expected = self.config.expected_identities
         if expected:
@@ -331,42 +204,42 @@ class RunEngine:
                         "preflight",
                         f"{role} identity changed since the run started: {expected[role]!r} then, {idn!r} now",
                     )
-        self._call("cycler reset", cyc.initialize)
+        self.calls.call("cycler reset", cyc.initialize)
         with contextlib.suppress(InputError):
-            self._call("clear protection", cyc.clear_protection)
-        errors = self._call("cycler error queue", cyc.errors)
+            self.calls.call("clear protection", cyc.clear_protection)
+        errors = self.calls.call("cycler error queue", cyc.errors)
         if errors:
             self.stats.notes.append(f"cycler error queue at start: {errors}")
-        self._call("current limits", cyc.set_current_limits, env.current_charge_max, env.current_discharge_max)
+        self.calls.call("current limits", cyc.set_current_limits, env.current_charge_max, env.current_discharge_max)
         try:
-            self._call("voltage limits", cyc.set_voltage_limits, env.voltage_min, env.voltage_max)
+            self.calls.call("voltage limits", cyc.set_voltage_limits, env.voltage_min, env.voltage_max)
         except InputError:
-            self._call("voltage limit", cyc.set_voltage_limits, None, env.voltage_max)
+            self.calls.call("voltage limit", cyc.set_voltage_limits, None, env.voltage_max)
             self.stats.notes.append("no instrument low-voltage cut-off: the runner enforces voltage_min")
         if hasattr(cyc, "set_temperature_limit"):
-            self._optional("over-temperature trip", cyc.set_temperature_limit, env.temperature_max_K)
-        self._optional("watchdog", cyc.set_watchdog, self.config.watchdog_s)
+            self.calls.optional("over-temperature trip", cyc.set_temperature_limit, env.temperature_max_K)
+        self.calls.optional("watchdog", cyc.set_watchdog, self.config.watchdog_s)
         if self.options.sample_period_s > self.config.watchdog_s / 3:
             raise Abort(
                 "preflight",
                 f"sample_period_s {self.options.sample_period_s:g} s is too long for the "
                 f"instrument watchdog of {self.config.watchdog_s:g} s (at most a third of it)",
             )
-        m = self._call("measure", cyc.measure)
+        m = self.calls.call("measure", cyc.measure)
         self._has_T = m.temperature_K is not None
         first = Sample(m.t_s if m.t_s is not None else self.clock.now(), m.voltage_V, m.current_A, m.temperature_K)
         bad = check_sample(first, env)
         if bad is not None:
             raise Abort("preflight", f"cell at rest: {bad.message} (is the cell connected?)")
         self._rest_voltage = first.v
-        alarms = self._call("chamber alarms", cha.alarms)
+        alarms = self.calls.call("chamber alarms", cha.alarms)
         if alarms:
             raise Abort("preflight", f"chamber alarm(s) before the run: {alarms}")
         o = self.options
-        self._call("chamber set point", cha.set_point, o.ambient_degC)
+        self.calls.call("chamber set point", cha.set_point, o.ambient_degC)
         poll = max(min(5.0, o.stable_hold_s / 6 if o.stable_hold_s > 0 else 5.0), o.sample_period_s)
         try:
-            self._T_amb_C = self._call(
+            self._T_amb_C = self.calls.call(
                 "chamber stable",
                 lambda: cha.wait_stable(
                     o.stable_tol_K, o.stable_timeout_s, self.clock, hold_s=o.stable_hold_s, poll_s=poll
@@ -415,7 +288,7 @@ class RunEngine:
     # -- RUNNING -----------------------------------------------------------------------------------------
     def _program(self, current: float) -> float | None:
         """Program ``current``; returns the instrument time it took effect (if the instrument says)."""
-        self._call("set current", self.cycler.set_current, current)
+        self.calls.call("set current", self.cycler.set_current, current)
         self._i_cmd = current
         self.stats.current_sets += 1
         self._t_applied = getattr(self.cycler, "last_applied_t_s", None)
@@ -430,39 +303,25 @@ class RunEngine:
         count = self._step_count
         t_begin = self.clock.now()
         ex.begin(t_begin, self._last)
-        self._current = (entry, count, ex)
+        self._current = (entry, count, ex, self._rows)
         self._current_announced = False
         t_applied = self._program(ex.command(t_begin))
         if not self._output_on:
-            self._call("output on", self.cycler.output, True)
+            self.calls.call("output on", self.cycler.output, True)
             self._output_on = True
             t_applied = None  # the step starts when the output is on: at the first sample
         if t_applied is not None:
             ex.rebase(t_applied)
         first = True
         self._mismatches = 0
-        self.step_records.append(
-            {
-                "step_count": count,
-                "entry": entry.entry,
-                "step_index": entry.step_index,
-                "trial": entry.trial,
-                "kind": entry.step.kind.value,
-                "label": entry.label,
-                "status": "running",
-                "row_start": self._rows,
-                "t_start": ex.t0,
-            }
-        )
         t_sched = ex.t0
         loop0 = time.perf_counter()
-        self._in_loop = True
+        self.calls.timing = True
         try:
             while True:
                 s = self._measure(t_sched)
                 if first and t_applied is None:
                     ex.rebase(s.t)
-                    self.step_records[-1]["t_start"] = s.t
                 self._record(s, entry, count, ex)
                 if first:
                     first = False
@@ -483,7 +342,7 @@ class RunEngine:
                 if abs(i_new - self._i_cmd) > CURRENT_RESOLUTION_A:
                     self._program(i_new)
         finally:
-            self._in_loop = False
+            self.calls.timing = False
             self.stats.loop_wall_s += time.perf_counter() - loop0
         self._current = None
         self._pending_stop = (entry, count, ended, self._last.t if self._last else None, self._rows)
@@ -492,9 +351,7 @@ class RunEngine:
         """Close the previous step's record (completed) and open the current one's (documents in order)."""
         self._flush_pending_stop()
         if self._current is not None and not self._current_announced:
-            entry, count, ex = self._current
-            rec = self._record_of(count)
-            row = rec["row_start"] if rec else self._rows
+            entry, count, ex, row = self._current
             self._emit("step_start", StepStart(entry, count, ex.t0, row, entry.step.kind.value, ex.duration_s))
             self._current_announced = True
 
@@ -504,22 +361,13 @@ class RunEngine:
             self._pending_stop = None
             self._record_step_stop(entry, count, "completed", ended, t_end, row_end)
 
-    def _record_of(self, count: int) -> dict[str, Any] | None:
-        for rec in reversed(self.step_records):
-            if rec["step_count"] == count:
-                return rec
-        return None
-
     def _record_step_stop(
         self, entry: PlanEntry, count: int, status: str, ended_by: str | None, t_s: float | None, row_end: int
     ) -> None:
-        rec = self._record_of(count)
-        if rec is not None:
-            rec.update(status=status, ended_by=ended_by, row_end=row_end, t_end=t_s)
         self._emit("step_stop", StepStop(entry, count, status, ended_by, t_s, row_end))
 
     def _measure(self, t_sched: float) -> Sample:
-        m = self._call("measure", self.cycler.measure)
+        m = self.calls.call("measure", self.cycler.measure)
         t = m.t_s if m.t_s is not None else self.clock.now()
         if self._t_applied is not None:
             d = t - self._t_applied
@@ -582,7 +430,7 @@ class RunEngine:
             self._mismatches = 0
 
     def _check_protection(self, force: bool = False) -> None:
-        p = self._call("protection state", self.cycler.protection)
+        p = self.calls.call("protection state", self.cycler.protection)
         if p.tripped:
             causes = ", ".join(sorted(p.causes)) or f"status {p.raw}"
             raise Abort("protection", f"the cycler turned its output off: {causes}{self._context(p.causes)}")
@@ -609,7 +457,7 @@ class RunEngine:
         if t >= self._next_chamber:
             self._next_chamber = t + self.options.chamber_period_s
             try:
-                self._T_amb_C = self._call("chamber read", self.chamber.read)
+                self._T_amb_C = self.calls.call("chamber read", self.chamber.read)
             except Abort as exc:
                 if exc.kind != "instrument":
                     raise
@@ -626,14 +474,14 @@ class RunEngine:
             self._check_protection()
 
     def _finish_ok(self) -> None:
-        self._call("output off", self.cycler.output, False)
+        self.calls.call("output off", self.cycler.output, False)
         self._output_on = False
-        self._call("current 0", self.cycler.set_current, 0.0)
+        self.calls.call("current 0", self.cycler.set_current, 0.0)
 
     def _summary(self) -> dict[str, Any]:
         self.stats.resistance_ohm = self.resistance.r_ohm
         out: dict[str, Any] = {
-            "steps": [*self.config.previous_steps, *self.step_records],
+            "steps": [dict(r) for r in self.records.records],
             "stats": self.stats.to_dict(),
             "identities": self.identities,
             "rows": self._rows,

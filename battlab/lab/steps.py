@@ -20,6 +20,7 @@ first sample past its voltage.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,6 +36,7 @@ from protocols.protocol import (
     Quantity,
     Rest,
     Step,
+    StepKind,
 )
 
 _EPS_T = 1e-6
@@ -271,25 +273,33 @@ class ProfileExecutor(StepExecutor):
         return "end of profile" if self.step_time(s.t) + _EPS_T >= self.deadline else None
 
 
+def _cv(step: ConstantVoltage, period_s: float, env: Envelope, gain: float, r: ResistanceEstimate) -> StepExecutor:
+    i_max = env.current_charge_max if step.direction.sign > 0 else env.current_discharge_max
+    return CVExecutor(step, period_s, i_max, gain, r)
+
+
+#: The executor of each step kind: (step, sample period [s], envelope, CV gain, resistance estimate) → executor.
+EXECUTORS: dict[StepKind, Callable[..., StepExecutor]] = {
+    StepKind.REST: lambda step, period, env, gain, r: RestExecutor(step, period),
+    StepKind.CC: lambda step, period, env, gain, r: CCExecutor(step, period),
+    StepKind.CV: _cv,
+    StepKind.CCCV: lambda step, period, env, gain, r: CCCVExecutor(step, period, gain, r),
+    StepKind.PROFILE: lambda step, period, env, gain, r: ProfileExecutor(step, period),
+}
+
+
 def executor_for(
     step: Step, period_s: float, envelope: Envelope, *, gain: float, resistance: ResistanceEstimate
 ) -> StepExecutor:
-    """The executor of a protocol step."""
-    if isinstance(step, Rest):
-        return RestExecutor(step, period_s)
-    if isinstance(step, ConstantCurrent):
-        return CCExecutor(step, period_s)
-    if isinstance(step, ConstantVoltage):
-        i_max = envelope.current_charge_max if step.direction.sign > 0 else envelope.current_discharge_max
-        return CVExecutor(step, period_s, i_max, gain, resistance)
-    if isinstance(step, CCCV):
-        return CCCVExecutor(step, period_s, gain, resistance)
-    if isinstance(step, ProfileStep):
-        return ProfileExecutor(step, period_s)
-    raise TypeError(f"no executor for step {step!r}")
+    """The executor of a protocol step (looked up in :data:`EXECUTORS` by its kind)."""
+    make = EXECUTORS.get(step.kind)
+    if make is None:
+        raise TypeError(f"no executor for step {step!r}")
+    return make(step, period_s, envelope, gain, resistance)
 
 
 __all__ = [
+    "EXECUTORS",
     "CCCVExecutor",
     "CCExecutor",
     "CVExecutor",
