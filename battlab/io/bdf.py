@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from battlab.io.data import REQUIRED, LoggedData
+from battlab.io.logged import REQUIRED, LoggedData
 from protocols.errors import InputError
 
 

@@ -10,7 +10,7 @@ import warnings
 
 import numpy as np
 
-from battlab.io.data import CURRENT, REQUIRED, TIME, VOLTAGE, LoggedData
+from battlab.io.logged import CURRENT, REQUIRED, TIME, VOLTAGE, LoggedData
 from protocols.errors import InputError
 
 

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from battlab.io.data import REQUIRED, LoggedData
+from battlab.io.logged import REQUIRED, LoggedData
 from protocols.errors import InputError
 
 FORMAT = "battlab-run-log"

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from battlab.io.data import AMBIENT, CURRENT, NET_CAPACITY, SURFACE, TIME, VOLTAGE, LoggedData
+from battlab.io.logged import AMBIENT, CURRENT, NET_CAPACITY, SURFACE, TIME, VOLTAGE, LoggedData
 from protocols.errors import InputError
 
 FIELDS = {

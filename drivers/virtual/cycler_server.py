@@ -10,16 +10,14 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from drivers.scpi import codec
 from drivers.scpi.dialects import ScpiDialect, ScpiProperty
 from drivers.virtual.faults import FaultInjector
 from drivers.virtual.instruments import ExecutionError, SimulatedCycler
+from drivers.virtual.served import ServedLab
 from drivers.virtual.textserver import LineServer
-
-if TYPE_CHECKING:
-    from drivers.virtual.lab import VirtualLab
 
 
 class ScpiCyclerServer:
@@ -27,7 +25,7 @@ class ScpiCyclerServer:
 
     def __init__(
         self,
-        lab: VirtualLab,
+        lab: ServedLab,
         dialect: ScpiDialect,
         *,
         host: str = "127.0.0.1",

@@ -2,22 +2,18 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 from drivers.chambers import espec_codec as ec
 from drivers.virtual.faults import FaultInjector
 from drivers.virtual.instruments import ExecutionError
+from drivers.virtual.served import ServedLab
 from drivers.virtual.textserver import LineServer
-
-if TYPE_CHECKING:
-    from drivers.virtual.lab import VirtualLab
 
 
 class EspecServer:
     """Answers ``TEMP?``, ``TEMP, S…``, ``MODE, …``, ``MODE?``, ``MON?``, ``ALARM?``, ``TYPE?``, ``ROM?``."""
 
     def __init__(
-        self, lab: VirtualLab, *, host: str = "127.0.0.1", port: int = 0, faults: FaultInjector | None = None
+        self, lab: ServedLab, *, host: str = "127.0.0.1", port: int = 0, faults: FaultInjector | None = None
     ) -> None:
         self.lab = lab
         self.server = LineServer(

@@ -16,7 +16,6 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
 
 from pymodbus.constants import ExcCodes
 from pymodbus.framer import FramerType
@@ -26,9 +25,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 from drivers.chambers import watlow_codec as wc
 from drivers.virtual.faults import Fault, FaultInjector
 from drivers.virtual.instruments import ExecutionError
-
-if TYPE_CHECKING:
-    from drivers.virtual.lab import VirtualLab
+from drivers.virtual.served import ServedLab
 
 log = logging.getLogger("drivers.virtual")
 
@@ -38,7 +35,7 @@ class F4TModbusServer:
 
     def __init__(
         self,
-        lab: VirtualLab,
+        lab: ServedLab,
         *,
         host: str = "127.0.0.1",
         tcp_port: int | None = 0,
