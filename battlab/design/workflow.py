@@ -136,8 +136,8 @@ def groups(
 ) -> GroupsReport:
     """Rank the parameters by orthogonalised sensitivity (Fig. 4), group them (Table 9), write ``groups.json``
     and the figures (Fig. 4 and, with ``perturb``, Fig. 5)."""
+    from battlab.design import figures as figs
     from battlab.design import identifiability, information
-    from battlab.plots import identifiability as figs
 
     store, note = open_store(store_path)
     with store:
@@ -179,7 +179,7 @@ def groups(
 def perturbation_plot(store: Any, info: Any, grp: Any, ranking: Any, profile_id: int | None, path: Path) -> Path:
     """Fig. 5: the top parameter of each group set to θ̄ ∈ {0, 0.5, 1} on one profile (each value is a new cell:
     the model is rebuilt for it, about 2 s)."""
-    from battlab.plots import identifiability as figs
+    from battlab.design import figures as figs
     from battlab.simulation import simulate
 
     cell = store.cell()
@@ -234,12 +234,12 @@ def design(
 ) -> DesignReport:
     """Select ``M`` library profiles per parameter group (convex relaxation, rounding, checks; eqs. 26–35) and
     write the plan TOML (whole experiment), one TOML per group, ``summary.json`` and a figure of the weights."""
+    from battlab.design import figures as figs
     from battlab.design import groups as gd
     from battlab.design import identifiability, information
     from battlab.design import plan as planmod
     from battlab.design.criteria import Criterion
     from battlab.noise import NoiseModel
-    from battlab.plots import identifiability as figs
 
     if M < 1:
         raise InputError(f"-M must be at least 1, got {M}")

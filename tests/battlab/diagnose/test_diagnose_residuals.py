@@ -68,7 +68,7 @@ def test_nan_samples_are_left_out_and_all_nan_is_an_error() -> None:
 def test_figures_are_drawn(tmp_path) -> None:  # noqa: ANN001 (pytest tmp_path)
     from matplotlib.image import imread
 
-    from battlab.plots.residuals import conditional_errors, residual_vs_time, whiteness
+    from battlab.diagnose.figures import conditional_errors, residual_vs_time, whiteness
 
     rng = np.random.default_rng(2)
     v = 3.7 + 0.01 * I
