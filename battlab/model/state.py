@@ -1,0 +1,109 @@
+"""Solver settings, the raw trajectory, consistent initial states and the end-of-run checks."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from battlab import parameters
+from battlab.model.dfn import C_SCALE, DFN
+
+NP = len(parameters.DYNAMIC)
+NEWTON_FAIL = 1e-6  #: a step whose scaled residual stays above this has failed
+NEWTON_OPTIONS = {
+    "abstol": 1e-9,
+    "abstolStep": 1e-14,
+    "max_iter": 30,
+    "error_on_fail": False,
+    "linear_solver": "csparse",
+}
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Time-step control [s].
+
+    Every change of the current larger than ``refine_rate`` × 1C (default: any change) restarts the scheme
+    with a backward-Euler step of ``dt_first``, after which steps grow by ``growth`` up to ``dt_max``: BDF2
+    carried across a kink of the solution is only first order (measured: 1.1 mV vs 0.04 mV on UDDS at 1 s
+    samples). ``chunk``: steps per call of the CasADi stepper.
+    """
+
+    dt_max: float = 10.0
+    dt_first: float = 0.25
+    growth: float = 2.0
+    refine_rate: float = 0.0
+    chunk: int = 128
+
+
+@dataclass
+class Trajectory:
+    """Raw solver output at the sample times (model convention: current positive = discharge)."""
+
+    voltage: np.ndarray
+    T1: np.ndarray
+    T2: np.ndarray
+    sto_min: np.ndarray
+    sto_max: np.ndarray
+    dV: np.ndarray | None
+    dT2: np.ndarray | None
+    n_samples: int
+    ended_by: str | None
+    n_steps: int
+    final_state: np.ndarray
+    seconds: float
+    newton_iterations: int = 0
+
+
+def initial_state(model: DFN, soc0: float, theta_bar: np.ndarray, T0: float) -> np.ndarray:
+    """Differential state at rest: uniform particle stoichiometries at soc0, c_e = c_e0, T = T0."""
+    lay = model.layout
+    sl = lay.slices()
+    sto_n, sto_p = model.cell.stoichiometry(soc0)
+    ce0 = parameters.SPECS["c_e0"].denormalise(float(theta_bar[parameters.NAMES.index("c_e0")]))
+    x = np.zeros(lay.nx)
+    x[sl["sn"]] = sto_n
+    x[sl["sp"]] = sto_p
+    x[sl["ce"]] = ce0 / C_SCALE
+    x[sl["T1"]] = T0 - model.T_ref
+    x[sl["T2"]] = T0 - model.T_ref
+    return x
+
+
+def guess_algebraic(model: DFN, x: np.ndarray, I_dis: float) -> np.ndarray:
+    """A starting point for the algebraic Newton solve: equilibrium potentials, uniform reaction."""
+    cell, lay = model.cell, model.layout
+    sl = lay.slices()
+    sn = float(np.mean(x[sl["sn"]]))
+    sp = float(np.mean(x[sl["sp"]]))
+    Un, Up = float(cell.fn("U_n", sn)), float(cell.fn("U_p", sp))
+    z = np.zeros(lay.nz)
+    off = lay.nx
+    z[sl["phis_n"].start - off : sl["phis_n"].stop - off] = 0.0
+    z[sl["phis_p"].start - off : sl["phis_p"].stop - off] = Up - Un
+    z[sl["phie"].start - off : sl["phie"].stop - off] = -Un
+    A = float(cell["A"])
+    for e, sign in (("n", 1.0), ("p", -1.0)):
+        a = 3.0 * float(cell[f"eps_s_{e}"]) / float(cell[f"R_s_{e}"])
+        z[sl[f"i_{e}"].start - off : sl[f"i_{e}"].stop - off] = sign * I_dis / (A * a * float(cell[f"L_{e}"]))
+    return z
+
+
+def check_end(
+    k: int, V: np.ndarray, T2: np.ndarray, smin: np.ndarray, smax: np.ndarray, limits: dict[str, float]
+) -> str | None:
+    """Why the run must stop at sample k, or None."""
+    if not (np.isfinite(V[k]) and np.isfinite(T2[k])):
+        return "solver: no converged solution (state left the model's domain)"
+    if V[k] < limits["V_min"]:
+        return f"V < {limits['V_min']:g}"
+    if V[k] > limits["V_max"]:
+        return f"V > {limits['V_max']:g}"
+    if T2[k] > limits["T_max"]:
+        return f"T_surface > {limits['T_max'] - 273.15:g} degC"
+    if smin[k] <= 0.0:
+        return "surface stoichiometry reached 0"
+    if smax[k] >= 1.0:
+        return "surface stoichiometry reached 1"
+    return None
