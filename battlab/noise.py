@@ -3,7 +3,7 @@
 q is regressed on the L2 input intensity Ĩ = √(∫ I² dt) (eq. 37, I in A, t in s) with a line for charge-only
 profiles, an exponential for discharge-only ones and their mean for mixed ones (eqs. 38–39); Q = q² I_n
 (eq. 40). The paper's coefficients are the default. With I in A and t in s the charge line is negative at low
-intensity, so q is floored at the tester's voltage resolution (DESIGN.md). :meth:`NoiseModel.fit` refits the
+intensity, so q is floored at the tester's voltage resolution (docs/decisions.md). :meth:`NoiseModel.fit` refits the
 coefficients from repeated runs (eq. 36 gives each run's q).
 """
 

@@ -1,4 +1,4 @@
-"""Benchmark of the library sweep and the design (issue 4 targets).
+"""Benchmark of the library sweep and the design (targets printed beside each number).
 
     python benchmarks/bench_design.py [--workers 2] [--limit N] [--store sens.h5 --skip-sweep]
 
@@ -8,7 +8,7 @@ during the run (other work on the machine inflates the wall time: compare wall �
 times over all usable candidates × 18 parameters: the convex relaxation (cold: first cvxpy call in the process;
 warm), the first-order algorithm, and a whole stage with its checks. Targets: sweep ≤ 300 s and ≤ 2 GB on 2 cores;
 a design ≤ 2 s. PyBaMM is not run side by side here: measured on this machine it needs 15–75 s per profile with 9
-sensitivities (hours for the library), see the issue.
+sensitivities (hours for the library; bench_model.py's sensitivity section times it).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@
 
 Data from ``nca18650-true`` plus noise at the noise-model level; every fit starts from ``nca18650``. Prints the
 time of the full group-wise fit (target ≤ 10 min), the recovery table (truth, estimate, interval, covered?;
-only parameters whose truth sits on a bound are excluded, as DESIGN.md says; R_s, D_s, k, R_f of each electrode
+only parameters whose truth sits on a bound are excluded, as docs/decisions.md says; R_s, D_s, k, R_f of each electrode
 are scored on the set-identified intervals of the model's scaling symmetry, :mod:`battlab.identify.symmetry`,
 and their identifiable invariants are listed), the validation RMSE table (nominal, conventional, OED; against
 the noise-free truth; figures ``validation_*.png``), the interval coverage over seeds (seeds ≥ 1 refit the final
@@ -44,8 +44,8 @@ from protocols.library import Library
 
 
 def _status(e) -> bool | str:
-    """Covered (bool), or why the parameter is excluded from coverage. As DESIGN.md says, exclusions follow where
-    the truth lies (on a bound), not the estimator's flags: a parameter without an interval counts as missed; the
+    """Covered (bool), or why the parameter is excluded from coverage. As docs/decisions.md says, exclusions follow
+    where the truth lies (on a bound), not the estimator's flags: a parameter without an interval counts as missed; the
     parameters moved by the model's scaling symmetry are scored on their set-identified intervals."""
     spec = P.SPECS[e.name]
     if spec.truth in (spec.lower, spec.upper):
@@ -286,7 +286,7 @@ def _report_coverage(covered: list[tuple[str, bool]], per_run: list[int]) -> Non
     print(
         f"\ncoverage over {len(per_run)} seeds (interior parameters, truth not on a bound): {hits.mean():.3f} "
         f"({int(hits.sum())}/{hits.size}; target 0.90-0.99); covered per run: {per_run} "
-        f"(DESIGN.md: at least 10 of 12 per run; met in {sum(p >= 10 for p in per_run)} of {len(per_run)})"
+        f"(docs/decisions.md: at least 10 of 12 per run; met in {sum(p >= 10 for p in per_run)} of {len(per_run)})"
     )
     orbit = {n for o in symmetry.ORBITS.values() for n in o}
     for label, sel in (("covariance intervals", False), ("set-identified (symmetry) intervals", True)):

@@ -1,4 +1,4 @@
-"""Accuracy, speed and memory of battlab's DFN–thermal model against PyBaMM, side by side (issue 2 targets).
+"""Accuracy, speed and memory of battlab's DFN–thermal model against PyBaMM, side by side, with the targets.
 
 Run: ``python benchmarks/bench_model.py`` (about 15–25 min on 2 cores, most of it PyBaMM's exact drive-cycle
 reference and cold compiles), or ``--quick`` (shorter drive cycle, fewer meshes and repeats, PyBaMM's

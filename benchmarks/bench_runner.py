@@ -10,7 +10,7 @@
 2. Runner overhead without instruments: the same engine on in-memory instruments whose clock jumps to each next
    sample (no sockets, no sleeping): wall time per sample is the runner's cost alone, logging included.
 
-Targets (issue 6): ≥ 1000× real time including the socket round trips; ≤ 1 ms runner overhead per sample.
+Targets: ≥ 1000× real time including the socket round trips; ≤ 1 ms runner overhead per sample.
 Run: ``python benchmarks/bench_runner.py [--quick]``; prints a table and a JSON line.
 """
 
@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from battlab import virtual
 from battlab.io.logs import read_log
+from battlab.lab import virtual
 from battlab.lab.catalog import Catalog
 from battlab.lab.documents import CatalogSink, LogSink
 from battlab.lab.engine import EngineConfig, RunEngine

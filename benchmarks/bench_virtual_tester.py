@@ -23,7 +23,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from battlab import virtual
+from battlab.lab import virtual
 from drivers.scpi.cycler import ScpiCycler
 from drivers.virtual.lab import VirtualLab, VirtualLabConfig
 

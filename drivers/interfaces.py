@@ -1,6 +1,6 @@
 """The two device interfaces the runner programs against: :class:`Cycler` and :class:`Chamber`.
 
-Conventions (DESIGN.md): SI units, time in s; **current positive = charge** (BDF); temperatures in K inside
+Conventions (docs/conventions.md): SI units, time in s; **current positive = charge** (BDF); temperatures in K inside
 ``drivers`` except at the chamber interface, which speaks °C because chambers do (``set_point(T_degC)``).
 """
 

@@ -4,7 +4,7 @@ Every function that depends on one of these takes it as a keyword argument; the 
 """
 
 RATED_CAPACITY_AH = 2.7
-"""Rated capacity [Ah]; the 1C current is this many amperes (DESIGN.md: C = 2.7 A)."""
+"""Rated capacity [Ah]; the 1C current is this many amperes (docs/conventions.md: C = 2.7 A)."""
 
 ONE_C_A = 2.7
 """The 1C current [A]."""

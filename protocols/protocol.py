@@ -262,19 +262,25 @@ class Protocol:
     def load(cls, path: str | Path, *, library: Any = None) -> Protocol:
         """Read a TOML or JSON protocol file (``library``: a Library or path for ``library_id`` steps)."""
         path = Path(path)
-        if not path.is_file():
-            raise InputError(f"{path}: no such protocol file")
-        text = path.read_text(encoding="utf-8")
-        try:
-            if path.suffix.lower() == ".json":
-                data = json.loads(text)
-            elif path.suffix.lower() == ".toml":
-                data = tomllib.loads(text)
-            else:
-                raise InputError(f"{path}: protocol files end in .toml or .json")
-        except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
-            raise InputError(f"{path}: not valid {path.suffix[1:].upper()}: {exc}") from None
+        data = read_table_file(path, "protocol")
         return cls.from_dict(data, source=str(path), base_dir=path.parent, library=library)
+
+
+def read_table_file(path: Path, what: str) -> Any:
+    """The data of a TOML or JSON file; a missing file, another suffix or bad syntax is an :class:`InputError`
+    naming ``path`` and ``what`` it should be (e.g. "protocol", "plan")."""
+    if not path.is_file():
+        raise InputError(f"{path}: no such {what} file")
+    text = path.read_text(encoding="utf-8")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".json":
+            return json.loads(text)
+        if suffix == ".toml":
+            return tomllib.loads(text)
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"{path}: not valid {suffix[1:].upper()}: {exc}") from None
+    raise InputError(f"{path}: {what} files end in .toml or .json")
 
 
 def _drop_none(obj: Any) -> Any:

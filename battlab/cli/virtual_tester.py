@@ -2,7 +2,7 @@
 
 It serves a SCPI cycler (battlab's virtual dialect, Keysight N7900-like), a Watlow F4T over Modbus TCP (and
 optionally with RTU framing over TCP) and an Espec P-300 text protocol, all on one virtual clock that runs at
-``--speed`` × real time by itself. Cell physics: ``battlab.virtual.make_cell_physics(cell)`` when battlab
+``--speed`` × real time by itself. Cell physics: ``battlab.lab.virtual.make_cell_physics(cell)`` when battlab
 provides it (the DFN model); otherwise the drivers' stand-in equivalent-circuit cell, and the banner says so.
 """
 
@@ -24,18 +24,19 @@ from drivers.virtual.lab import LOOPBACK, VirtualLab, VirtualLabConfig
 from drivers.virtual.physics import CellPhysics, EquivalentCircuitCell
 from protocols.errors import InputError
 
-STANDIN = "stand-in equivalent-circuit cell (battlab.virtual.make_cell_physics not available)"
+PHYSICS_MODULE = "battlab.lab.virtual"
+STANDIN = "stand-in equivalent-circuit cell (battlab.lab.virtual.make_cell_physics not available)"
 
 
 def load_cell_physics(cell: str) -> tuple[CellPhysics, str]:
-    """battlab's physics for ``cell`` if ``battlab.virtual.make_cell_physics`` exists, else the stand-in."""
-    module = sys.modules.get("battlab.virtual")
-    if module is None and importlib.util.find_spec("battlab.virtual") is not None:
-        module = importlib.import_module("battlab.virtual")
+    """battlab's physics for ``cell`` if ``battlab.lab.virtual.make_cell_physics`` exists, else the stand-in."""
+    module = sys.modules.get(PHYSICS_MODULE)
+    if module is None and importlib.util.find_spec(PHYSICS_MODULE) is not None:
+        module = importlib.import_module(PHYSICS_MODULE)
     factory = getattr(module, "make_cell_physics", None) if module is not None else None
     if factory is None:
         return EquivalentCircuitCell(), STANDIN
-    return factory(cell), f"battlab.virtual.make_cell_physics({cell!r})"
+    return factory(cell), f"{PHYSICS_MODULE}.make_cell_physics({cell!r})"
 
 
 @click.group(name="virtual-tester")
@@ -85,7 +86,7 @@ def virtual_tester() -> None:
     type=click.Choice(["auto", "standin"]),
     default="auto",
     show_default=True,
-    help="auto: battlab.virtual.make_cell_physics if available, else the stand-in; standin: always the stand-in.",
+    help="auto: battlab.lab.virtual.make_cell_physics if available, else the stand-in; standin: always the stand-in.",
 )
 @click.option("--soc0", default=0.5, show_default=True, type=click.FloatRange(0.0, 1.0), help="Initial SOC.")
 @click.option("--ambient", default=25.0, show_default=True, type=float, help="Initial chamber air / degC.")

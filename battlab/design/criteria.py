@@ -1,4 +1,4 @@
-"""Design criteria on a Fisher information matrix F (eqs. 26, 30; DESIGN.md errata), all as "larger is better".
+"""Design criteria on a Fisher information matrix F (eqs. 26, 30; docs/decisions.md), all as "larger is better".
 
 * D: log det F (the paper minimises log det F⁻¹);
 * A: −trace F⁻¹;

@@ -1,5 +1,5 @@
-"""Write the design as a plan: protocol TOML files that :meth:`protocols.Protocol.load` reads (so ``battlab export``
-and the runner can use them), plus the design metadata in ``summary.json`` and ``<plan>.design.json``.
+"""Write the design as a plan (:mod:`battlab.io.plan`): protocol TOML files that the runner, ``battlab export``
+and ``battlab fit --plan`` read, plus the design metadata in ``summary.json`` and ``<plan>.design.json``.
 
 ``plan.toml`` is the whole experiment: the selected profiles of group 1, then group 2, … each brought to its start
 SOC and rested (:func:`protocols.concatenate`); ``plan.group<k>.toml`` holds group k alone. Profile steps refer to
@@ -22,6 +22,7 @@ import numpy as np
 
 from battlab.design.groups import GroupDesign
 from battlab.design.sweep import SensitivityStore, model_version, profile_hash
+from battlab.io.plan import Plan, sidecar_path
 from protocols.concatenate import concatenate
 from protocols.errors import InputError
 from protocols.profile import Profile
@@ -58,8 +59,9 @@ def _library_ref(store: SensitivityStore, profiles: Sequence[Profile], plan_dir:
         return str(lib_path), lib
 
 
-def _protocol(name: str, groups: Sequence[tuple[int, list[Profile]]], description: str) -> Protocol:
-    """Concatenate the groups' profiles in order and label each profile step with its group."""
+def grouped_protocol(name: str, groups: Sequence[tuple[int, list[Profile]]], description: str) -> Protocol:
+    """Concatenate the groups' profiles in order and label each profile step 'group k: profile ID' (the labels
+    :func:`battlab.io.plan.design_groups` falls back on)."""
     flat = [p for _, ps in groups for p in ps]
     proto = concatenate(flat, name=name).protocol
     group_of = [g for g, ps in groups for _ in ps]
@@ -87,7 +89,7 @@ def _write(proto: Protocol, path: Path, library_ref: str | None) -> None:
 
 
 def summary(designs: Sequence[GroupDesign], criterion: str, solve_seconds: float, **extra: Any) -> dict[str, Any]:
-    """The machine-readable summary (DESIGN.md contract plus details)."""
+    """The machine-readable summary (docs/file-formats.md § Summaries, plus details)."""
     return {
         "criterion": criterion,
         "groups": [
@@ -122,14 +124,13 @@ def write_plan(
         + "; ".join(f"group {d.index} ({', '.join(d.new_parameters)}): profiles {d.selected}" for d in designs)
         + f" (design metadata in {out.stem}.design.json)"
     )
-    whole = _protocol(f"OED plan ({criterion}-optimal, {cell})", per_group, desc)
+    whole = grouped_protocol(f"OED plan ({criterion}-optimal, {cell})", per_group, desc)
     _write(whole, out, ref)
     group_paths = []
     for d, (g, ps) in zip(designs, per_group, strict=True):
         gp = out.with_name(f"{out.stem}.group{g}.toml")
-        _write(
-            _protocol(f"OED group {g} ({criterion}-optimal, {cell})", [(g, ps)], f"group {g}: {d.parameters}"), gp, ref
-        )
+        name = f"OED group {g} ({criterion}-optimal, {cell})"
+        _write(grouped_protocol(name, [(g, ps)], f"group {g}: {d.parameters}"), gp, ref)
         group_paths.append(gp)
     _check_round_trip(out, all_profiles, lib)
     data = summary(
@@ -148,14 +149,14 @@ def write_plan(
     text = json.dumps(_jsonable(data), indent=1)
     sp = out.with_name("summary.json")
     sp.write_text(text)
-    side = out.with_name(f"{out.stem}.design.json")
+    side = sidecar_path(out)
     side.write_text(text)
     return PlanFiles(out, tuple(group_paths), sp, side)
 
 
 def _check_round_trip(path: Path, profiles: Sequence[Profile], library: Any = None) -> None:
-    """The plan must load with :meth:`Protocol.load` and carry exactly the selected profiles."""
-    proto = Protocol.load(path, library=library)
+    """The plan must load as a plan (:meth:`battlab.io.plan.Plan.load`) and carry exactly the selected profiles."""
+    proto = Plan.load(path, library=library).protocol
     got = [s.profile for s in proto.steps if isinstance(s, ProfileStep)]
     if len(got) != len(profiles) or any(
         profile_hash(a.with_meta(soc0=b.soc0)) != profile_hash(b) for a, b in zip(got, profiles, strict=True)

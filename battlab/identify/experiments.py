@@ -5,7 +5,7 @@
 * Resampling to ``dt`` (default 1 s, the sampling of the Fisher information): the current is averaged over each
   interval [t_k, t_k + dt) (charge-conserving, zero-order hold), the voltage is interpolated at t_k.
 * Start SOC: ``meta["soc0"]`` if logged; else from the first sample's voltage when the cell rests there
-  (rest voltage ↔ OCV of the cell; DESIGN.md), else an error. Later segments add the charge passed
+  (rest voltage ↔ OCV of the cell), else an error. Later segments add the charge passed
   (``Net Capacity / Ah`` if logged, else ∫I dt) divided by the cell's capacity.
 * Ambient: mean chamber temperature (or 25 °C); T0: the surface temperature at the segment's start.
 * Weights: Q from the noise model (eqs. 37–40) plus quantisation (:func:`battlab.identify.fit.variance_of`).

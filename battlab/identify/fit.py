@@ -7,7 +7,7 @@ iteration; the Jacobian is ours: −dV/dθ̄ / √Q from the forward sensitiviti
 voltage limit holds its last voltage for the missing samples (their Jacobian rows are zero), so a bad trial
 point costs much instead of failing.
 
-Group-wise and cumulative (DESIGN.md): stage k fits the parameters of groups 1..k on all data of stages
+Group-wise and cumulative (docs/decisions.md): stage k fits the parameters of groups 1..k on all data of stages
 1..k, starting where stage k − 1 ended; the final intervals are the last stage's.
 """
 

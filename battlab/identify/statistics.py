@@ -1,4 +1,4 @@
-"""Parameter statistics after a weighted least-squares fit (paper eqs. 44–46 as corrected in DESIGN.md).
+"""Parameter statistics after a weighted least-squares fit (paper eqs. 44–46 as corrected in docs/decisions.md).
 
 With the weighted Jacobian J_w = W^½ ∂ŷ/∂θ̄ and weighted residuals r_w = W^½ (y − ŷ) at the estimate:
 

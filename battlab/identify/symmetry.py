@@ -7,9 +7,9 @@ For each electrode the DFN–thermal model (Appendix A) is unchanged, for every 
 the particle equation in ξ = r/R_s (A1–A2) depends on D_s/R_s² and on the surface flux through (D_s/R_s)·∂c/∂ξ;
 with a_s = 3ε_s/R_s a fixed volumetric current a_s F j (A15) needs a flux per area j ∝ R_s, so ∂c/∂ξ is unchanged;
 Butler–Volmer (A17) depends on j/i₀ with i₀ ∝ k (A18), and the film drop (A19) on j·R_f; the heat sources (B1–B5)
-see only i_e, η and j·a_s. Voltage and temperature
-agree to 5e-14 V and 6e-14 K at λ = 0.7 and 1.5 (``tests/battlab/test_symmetry.py``). No experiment can
-therefore separate the four values of an electrode: only the three invariants
+see only i_e, η and j·a_s. Voltage and temperature agree to 5e-14 V and 6e-14 K at λ = 0.7 and 1.5
+(``tests/battlab/identify/test_identify_symmetry.py``). No experiment can therefore separate the four values of
+an electrode: only the three invariants
 
     τ = R_s²/D_s [s]  (diffusion time),   κ = k/R_s,   ρ = R_f·R_s
 

@@ -1,6 +1,6 @@
 """Validation on held-out profiles: RMSE tables like the paper's Tables 12–14 and figures like Figs. 7 and 9.
 
-The reference voltage is the noise-free truth when known (virtual lab; DESIGN.md: "RMSE against the noise-free
+The reference voltage is the noise-free truth when known (virtual lab; docs/decisions.md: "RMSE against the noise-free
 true voltage"), else the measurement. Constant-current discharges are scored up to 90 % of the discharged
 capacity as in Table 12 (from full charge, 90 % of the cell's capacity between its voltage limits,
 :meth:`Cell.capacity`, or until the true cell reaches V_min, :func:`cut_at_limit`).

@@ -19,7 +19,6 @@ from typing import Any
 import numpy as np
 
 from battlab.cell import Cell
-from protocols.errors import InputError
 
 
 def is_ocv_test(data: Any, q_nom: float) -> bool:
@@ -39,27 +38,10 @@ def load_all(paths: Sequence[str | Path], *, fix_sign: bool = False) -> tuple[li
 
 
 def plan_groups(plan: Path) -> list[tuple[list[str], set[str]]]:
-    """Groups (parameters, selected profile ids) of a design plan: its ``summary.json`` beside it, else the
-    plan's profile steps labelled 'group N' with the Table 9 groups."""
-    from battlab.parameters import TABLE9_GROUPS
-    from protocols.protocol import ProfileStep, Protocol
+    """Groups (parameters, selected profile ids) of a design plan (:func:`battlab.io.plan.design_groups`)."""
+    from battlab.io.plan import design_groups
 
-    proto = Protocol.load(plan)
-    summary = plan.with_name("summary.json")
-    if summary.is_file():
-        try:
-            groups = json.loads(summary.read_text())["groups"]
-            return [(list(g["parameters"]), {str(s) for s in g["selected"]}) for g in groups]
-        except (KeyError, TypeError, json.JSONDecodeError) as exc:
-            raise InputError(f"{summary}: expected the design summary with 'groups' ({exc})") from None
-    out: list[tuple[list[str], set[str]]] = [(list(g), set()) for g in TABLE9_GROUPS]
-    for s in proto.steps:
-        if isinstance(s, ProfileStep):
-            label = s.label.lower()
-            k = int(label.split("group", 1)[1].split()[0].strip(":")) - 1 if "group" in label else 0
-            if 0 <= k < len(out):
-                out[k][1].add(str(s.profile.id))
-    return out
+    return [(list(g.parameters), set(g.selected)) for g in design_groups(plan)]
 
 
 def stages(params: str, plan: str | Path | None, experiments: list[Any]) -> list[Any]:

@@ -123,7 +123,7 @@ def open_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambie
     dialect = dialect_by_name(dialect_name(settings, limits))
     cycler_url, chamber_url, lab = settings.cycler_url.strip(), settings.chamber_url.strip(), None
     if settings.virtual:
-        from battlab.virtual import make_cell_physics
+        from battlab.lab.virtual import make_cell_physics
         from drivers.virtual.instruments import ChamberConfig
         from drivers.virtual.lab import VirtualLab, VirtualLabConfig
         from drivers.virtual.physics import EquivalentCircuitCell

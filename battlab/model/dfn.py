@@ -14,7 +14,7 @@ j as the interfacial current density i = F j_n [A m⁻²] (positive = lithium le
 - Butler–Volmer (A17–A20), α_a = α_c = 0.5: i = 2 i₀ sinh(F η/(2RT₁)),
   i₀ = k √(c_ss (c_max − c_ss) c_e), η = φ_s − φ_e − U(c_ss) − R_f i;
 - voltage (A21): V = φ_s(L) − φ_s(0) − R_c I;
-- thermal (B1–B4) with Bernardi's heat Q = I (U_bulk − V) − I T₁ ∂U_bulk/∂T (DESIGN.md errata) and the
+- thermal (B1–B4) with Bernardi's heat Q = I (U_bulk − V) − I T₁ ∂U_bulk/∂T (docs/decisions.md) and the
   Arrhenius law ψ = ψ_ref exp[(E/R)(1/T_ref − 1/T₁)] (B5 corrected) for D_s, D_e, κ, k;
 - effective properties: ψ^eff = ψ ε^b (Bruggeman) or ψ B (a BPX transport efficiency); a_s = 3 ε_s/R_s.
 

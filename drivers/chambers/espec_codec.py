@@ -5,9 +5,9 @@ commands end in CR LF; TCP port 10001 (a serial-to-Ethernet adaptor on the P-300
 ``PV,SP,upper,lower`` (e.g. ``23.5,25.0,50.0,-40.0``); ``TEMP, S25.0`` sets the set point; ``MODE, CONSTANT``
 runs constant mode; ``MON?`` replies ``temperature,humidity,mode,alarm count`` (humidity empty without a
 humidity system); ``ALARM?`` replies ``count[,code…]``; an error reply is ``NA:<message>`` (the library's
-table of messages). The ``OK:`` acknowledgement of a setting is as the issue states it and was **not** seen in
-the library (which only tests for ``NA:``): the driver relies on the ``OK:`` prefix alone; the virtual P-300
-echoes the command after it.
+table of messages). The ``OK:`` acknowledgement of a setting follows the interface specification we work from and
+was **not** seen in the library (which only tests for ``NA:``): the driver relies on the ``OK:`` prefix alone;
+the virtual P-300 echoes the command after it.
 """
 
 from __future__ import annotations

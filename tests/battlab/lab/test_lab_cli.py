@@ -62,7 +62,7 @@ def test_battlab_run_concatenated_library_profiles_on_the_dfn_virtual_tester(
     ]
     result = CliRunner().invoke(main, cmd)
     if result.exit_code == 1 and "MODEL" in result.output:
-        # The DFN occasionally fails to converge on a step (a model issue, reported); the runner then aborts
+        # The DFN occasionally fails to converge on a step (a model defect); the runner then aborts
         # safely with the virtual cycler's MODEL trip, as it must. Run once more on a fresh virtual tester.
         warnings.warn(f"DFN step failure in the virtual tester, run repeated: {result.output}", stacklevel=1)
         out = tmp_path / "run2.h5"

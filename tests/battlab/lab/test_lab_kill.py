@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 from lab_helpers import wait_until
 
-from battlab import virtual
 from battlab.io.data import load_data
 from battlab.io.logs import read_log
+from battlab.lab import virtual
 from battlab.lab.catalog import Catalog
 from battlab.lab.logfile import COLUMNS
 from battlab.lab.session import watchdog_for

@@ -1,5 +1,5 @@
 """The DFN–thermal model proven on its physics: forward sensitivities against finite differences, lithium
-conservation, the open-circuit limit, and the DESIGN.md errata (Arrhenius sign, Bernardi heat).
+conservation, the open-circuit limit, and the errata of docs/decisions.md (Arrhenius sign, Bernardi heat).
 
 All runs go through the public ``battlab.simulate``; the state-level checks read the solver's final state
 through the ``solver_trajectories`` fixture (tests/conftest.py).
@@ -21,7 +21,7 @@ from protocols import Profile
 
 ONE_C = 2.7  # A, nca18650
 FD_STEP = 1e-5  # in θ̄
-FD_RTOL = 1e-3  # relative 2-norm over time (issue 2)
+FD_RTOL = 1e-3  # relative 2-norm over time
 SUBSET = ("R_s_n", "D_s_p", "k_n", "c_e0", "eps_e_p", "t_plus")
 T_SUBSET = ("R_s_n", "D_s_p", "k_n", "c_e0")  # dT_surface/dθ̄ checked in the fast test
 
@@ -215,7 +215,7 @@ def flat(nca18650: Cell) -> Cell:
 
 
 def test_transport_and_kinetics_speed_up_when_hot(nca18650: Cell, flat: Cell) -> None:
-    """Arrhenius with the corrected sign (DESIGN.md): with E > 0, D_s, D_e, κ and k are larger above T_ref and
+    """Arrhenius with the corrected sign (docs/decisions.md): with E > 0, D_s, D_e, κ and k are larger above T_ref and
     smaller below it, so the overpotentials shrink when hot and grow when cold, compared with the same cell
     without temperature dependence."""
     assert all(float(nca18650[e]) > 0.0 for e in ENERGIES)

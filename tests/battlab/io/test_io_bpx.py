@@ -19,7 +19,7 @@ from battlab.functions import Expr, Table, evaluate
 from battlab.io.bpx import EXT, read_bpx, write_bpx
 from protocols.errors import InputError
 
-DATA = Path(os.environ.get("BATTLAB_DATA", Path(__file__).resolve().parents[3] / "shared" / "data")) / "bpx"
+DATA = Path(os.environ.get("BATTLAB_DATA", Path(__file__).resolve().parents[4] / "shared" / "data")) / "bpx"
 FILES = [
     "nmc_pouch_cell_BPX.json",
     "lfp_18650_cell_BPX.json",

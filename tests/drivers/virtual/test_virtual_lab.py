@@ -11,7 +11,6 @@ import time
 
 import numpy as np
 import pytest
-from conftest import wait_until
 
 from drivers import Measurement, open_instruments
 from drivers.chambers.espec import EspecP300
@@ -20,6 +19,7 @@ from drivers.clock import RealClock, TrackedClock
 from drivers.errors import InstrumentFault
 from drivers.scpi.cycler import ScpiCycler
 from drivers.scpi.dialects import KEYSIGHT_N7900
+from drivers.testing import wait_until
 from drivers.transport import LineAdapter
 from drivers.virtual.faults import DeviceFaultPlan
 from drivers.virtual.instruments import ChamberConfig

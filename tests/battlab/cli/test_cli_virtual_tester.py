@@ -51,7 +51,7 @@ def test_serve_in_a_process_then_ctrl_c() -> None:
     try:
         assert proc.stdout is not None
         urls = json.loads(proc.stdout.readline())
-        assert urls["physics"] in (STANDIN, "battlab.virtual.make_cell_physics('nca18650')")
+        assert urls["physics"] in (STANDIN, "battlab.lab.virtual.make_cell_physics('nca18650')")
         for key in ("cycler", "chamber", "chamber_rtu", "espec"):
             assert "127.0.0.1:" in urls[key]
         cyc = ScpiCycler.open(urls["cycler"])
@@ -98,7 +98,7 @@ def test_port_in_use_is_a_one_line_error() -> None:
 
 
 def test_physics_comes_from_battlab_when_it_provides_a_factory(monkeypatch: pytest.MonkeyPatch) -> None:
-    fake = types.ModuleType("battlab.virtual")
+    fake = types.ModuleType("battlab.lab.virtual")
     made: list[str] = []
 
     def make_cell_physics(cell: str) -> EquivalentCircuitCell:
@@ -106,9 +106,9 @@ def test_physics_comes_from_battlab_when_it_provides_a_factory(monkeypatch: pyte
         return EquivalentCircuitCell()
 
     fake.make_cell_physics = make_cell_physics  # type: ignore[attr-defined]
-    monkeypatch.setitem(sys.modules, "battlab.virtual", fake)
+    monkeypatch.setitem(sys.modules, "battlab.lab.virtual", fake)
     physics, name = load_cell_physics("nca18650-true")
     assert made == ["nca18650-true"] and "make_cell_physics('nca18650-true')" in name
-    monkeypatch.setitem(sys.modules, "battlab.virtual", types.ModuleType("battlab.virtual"))
+    monkeypatch.setitem(sys.modules, "battlab.lab.virtual", types.ModuleType("battlab.lab.virtual"))
     physics, name = load_cell_physics("nca18650")
     assert isinstance(physics, EquivalentCircuitCell) and name == STANDIN

@@ -14,12 +14,12 @@ from collections.abc import Callable
 from typing import Any
 
 import pytest
-from conftest import wait_until
 
 from drivers.chambers.espec import EspecP300
 from drivers.chambers.watlow_f4t import WatlowF4T
 from drivers.errors import CommunicationError
 from drivers.scpi.cycler import ScpiCycler
+from drivers.testing import wait_until
 from drivers.virtual.faults import Fault, FaultConfig, FaultInjector
 from drivers.virtual.lab import VirtualLab
 

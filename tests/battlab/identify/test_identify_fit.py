@@ -123,7 +123,7 @@ def test_interval_coverage_over_seeds(setup) -> None:
 @pytest.mark.slow
 def test_full_problem_groupwise_recovery_from_nominal() -> None:
     """All 18 parameters, Table 9 groups, 1.8 h of library profiles, noise from the noise model, start at the
-    nominal cell: at least 10 of the 12 interior parameters covered (DESIGN.md; R_s, D_s, k, R_f by their
+    nominal cell: at least 10 of the 12 interior parameters covered (docs/decisions.md; R_s, D_s, k, R_f by their
     set-identified intervals), the diffusion times recovered, a held-out pulse train predicted within 2x noise."""
     from battlab.identify.symmetry import INVARIANTS
     from battlab.identify.validation import rmse_table
