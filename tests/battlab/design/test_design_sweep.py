@@ -78,7 +78,7 @@ def test_resume_after_kill_9(tmp_path: Path) -> None:
     script = textwrap.dedent(f"""
         import os, signal, sys
         sys.path.insert(0, {str(Path(__file__).parent)!r})
-        from test_sweep import run, tiny_profiles
+        from test_design_sweep import run, tiny_profiles
         from pathlib import Path
         n = 0
         def die(outcome):
