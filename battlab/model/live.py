@@ -43,9 +43,7 @@ class LiveCell:
         x0 = solver.initial_state(model, soc0, self._theta, T0)
         self._y = np.concatenate([x0, solver.guess_algebraic(model, x0, 0.0)])
         self._xp = x0.copy()
-        if not self._stepper.analysed:
-            u = np.array([1.0, 0.0, float(self.cell["Q_nom"]), T0])
-            self._stepper.analyse_at(self._y, x0, x0, u, self._theta)
+        self._pivots = self._stepper.base_pivots(self._theta)  # re-analyses stay with this cell until reset
         self._I_dis = 0.0
         self._h_prev = 0.0
         self._h_allowed = self.settings.dt_first
@@ -104,13 +102,22 @@ class LiveCell:
             np.zeros(0, dtype=np.int32),
         )
         y0, xp0 = self._y.copy(), self._xp.copy()
-        done, code, _ = self._stepper.run(*args, self._y, self._xp, np.zeros(0), np.zeros(0), out, dummy, dummy, lim)
-        if code == -2:  # a pivot vanished: new pivot order at this state, then retry from the start
+        done, code, _ = self._stepper.run(
+            self._pivots, *args, self._y, self._xp, np.zeros(0), np.zeros(0), out, dummy, dummy, lim
+        )
+        if code in (-2, -5):  # a pivot vanished: a new pivot order at this state, then retry from the start
             self._y, self._xp = y0, xp0
-            u = np.array([max(hs[-1], 1e-3), 0.0, I_dis, ambient])
-            self._stepper.analyse_at(self._y, self._y[: len(xp0)], self._xp, u, self._theta)
+            if code == -5:
+                zero = self._stepper.analyse_at(
+                    self._y, self._y[: len(xp0)], self._xp, np.array([0.0, 0.0, I_dis, ambient]), self._theta
+                )
+                self._pivots = self._pivots.replace(zero=zero)
+            else:
+                u = np.array([max(hs[-1], 1e-3), 0.0, I_dis, ambient])
+                step = self._stepper.analyse_at(self._y, self._y[: len(xp0)], self._xp, u, self._theta)
+                self._pivots = self._pivots.replace(step=step)
             done, code, _ = self._stepper.run(
-                *args, self._y, self._xp, np.zeros(0), np.zeros(0), out, dummy, dummy, lim
+                self._pivots, *args, self._y, self._xp, np.zeros(0), np.zeros(0), out, dummy, dummy, lim
             )
         if code < 0:
             raise RuntimeError(f"cell model: step did not converge at t = {self.t + sum(hs[:done]):.3f} s")

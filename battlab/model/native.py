@@ -7,18 +7,23 @@ Build once per (cell, mesh, thermal option), cached on disk under ``$BATTLAB_CAC
 The LU program: the pivot order comes from SuperLU (COLAMD columns, partial pivoting) on the Jacobian at a
 representative state; the fill pattern of that order is computed symbolically, and the numeric factorisation
 replays it (as KLU's refactorisation does). A pivot that vanishes later is reported, and the caller re-analyses.
+Pivot programs are values (:class:`Pivots`): every run starts from the one of a fixed state that depends only on
+θ̄ (:meth:`NativeStepper.base_pivots`), and a re-analysis belongs to the run that needed it, so a result never
+depends on what ran before it in the process.
 """
 
 from __future__ import annotations
 
 import ctypes
 import hashlib
+import logging
 import os
 import shutil
 import subprocess
 import tempfile
 import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -29,6 +34,9 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from battlab.model.dfn import DFN
+from battlab.model.state import guess_algebraic, initial_state
+
+log = logging.getLogger("battlab.model")
 
 #: the library is built on (and cached for) this machine, so it may use its instruction set
 CFLAGS = ("-O3", "-march=native")
@@ -187,6 +195,30 @@ def analyse(jac_sparsity: ca.Sparsity, values: np.ndarray) -> LUProgram:
     return LUProgram(arr, len(slot))
 
 
+@dataclass(frozen=True, eq=False)
+class Pivots:
+    """A pivot program ready for ``bl_run``, with the arrays its pointers refer to (kept alive with it)."""
+
+    problem: _Problem
+    keep: tuple[np.ndarray, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class PivotSet:
+    """The pivot programs of a run: ``step`` for steps with h > 0, ``zero`` for zero-length solves (the consistent
+    start and the right limits at current changes), whose Jacobians differ in value (no mass terms)."""
+
+    step: Pivots
+    zero: Pivots
+
+    def replace(self, *, step: Pivots | None = None, zero: Pivots | None = None) -> PivotSet:
+        return PivotSet(step or self.step, zero or self.zero)
+
+
+#: base pivot programs kept per stepper (one per θ̄: a fit visits many)
+BASE_CACHE = 8
+
+
 class NativeStepper:
     """A compiled model: ``run`` advances a schedule of steps and writes the samples' outputs."""
 
@@ -205,44 +237,63 @@ class NativeStepper:
         self.generate_seconds = time.perf_counter() - t0
         t1 = time.perf_counter()
         if not lib_path.is_file():
+            log.info(
+                "compiling the model for cell %r (first use of this cell and mesh here; about 10-30 s, cached in %s)",
+                model.cell.name,
+                lib_path.parent,
+            )
             _compile(src, lib_path)
         self.compile_seconds = time.perf_counter() - t1
         self.lib = ctypes.CDLL(str(lib_path))
         self.lib.bl_run.restype = _INT
-        self._program: LUProgram | None = None
-        self._keep: list[np.ndarray] = []
-        self._retired: list[object] = []  # earlier pivot programs: a run on another thread may still use one
-        self._problem: _Problem | None = None
+        self._jth_colptr = np.ascontiguousarray(self.jth_sp.colind(), dtype=np.int32)
+        self._jth_row = np.ascontiguousarray(self.jth_sp.row(), dtype=np.int32)
+        self._base: OrderedDict[bytes, PivotSet] = OrderedDict()
         self._lock = threading.Lock()
 
     # --- LU analysis ---
-    def analyse_at(self, y: np.ndarray, xn: np.ndarray, xp: np.ndarray, u: np.ndarray, th: np.ndarray) -> None:
-        """(Re)compute the pivot order at a state (when the current one meets a vanishing pivot).
+    def analyse_at(self, y: np.ndarray, xn: np.ndarray, xp: np.ndarray, u: np.ndarray, th: np.ndarray) -> Pivots:
+        """A pivot program for the Jacobian at a state (when the one in use meets a vanishing pivot)."""
+        vals = np.array(self._f["bl_jac"](y, xn, xp, u, th).nonzeros())
+        return self._pivots(analyse(self.jac_sp, vals))
 
-        Thread-safe: runs on other threads keep the program they started with (``bl_run`` itself is reentrant).
-        """
+    def base_pivots(self, th: np.ndarray) -> PivotSet:
+        """The pivot programs every run at ``th`` starts from: analysed at rest at 50 % SOC and T_ref under a 1C
+        discharge, for a 1 s step and a zero-length solve (a state that depends on θ̄ alone, not on earlier
+        runs); cached per θ̄. Thread-safe."""
+        th = np.ascontiguousarray(th, dtype=np.float64)
+        key = th.tobytes()
         with self._lock:
-            vals = np.array(self._f["bl_jac"](y, xn, xp, u, th).nonzeros())
-            if self._problem is not None:
-                self._retired.append((self._problem, self._keep))
-            self._program = analyse(self.jac_sp, vals)
-            self._problem = self._build_problem()
+            found = self._base.get(key)
+            if found is not None:
+                self._base.move_to_end(key)
+                return found
+        model = self.model
+        x0 = initial_state(model, 0.5, th, model.T_ref)
+        y = np.concatenate([x0, guess_algebraic(model, x0, 0.0)])
+        q = float(model.cell["Q_nom"])
+        pivots = PivotSet(
+            self.analyse_at(y, x0, x0, np.array([1.0, 0.0, q, model.T_ref]), th),
+            self.analyse_at(y, x0, x0, np.array([0.0, 0.0, q, model.T_ref]), th),
+        )
+        with self._lock:
+            self._base[key] = pivots
+            while len(self._base) > BASE_CACHE:
+                self._base.popitem(last=False)
+        return pivots
 
-    def _build_problem(self) -> _Problem:
+    def _pivots(self, program: LUProgram) -> Pivots:
         lay = self.model.layout
-        a = self._program.arrays
-        jth_colptr = np.ascontiguousarray(self.jth_sp.colind(), dtype=np.int32)
-        jth_row = np.ascontiguousarray(self.jth_sp.row(), dtype=np.int32)
-        self._keep = [*a.values(), jth_colptr, jth_row]
+        a = program.arrays
 
         def p(x: np.ndarray) -> ctypes._Pointer:
             return x.ctypes.data_as(_PI)
 
-        return _Problem(
+        problem = _Problem(
             lay.ny,
             lay.nx,
             18,
-            self._program.nslot,
+            program.nslot,
             p(a["prow"]),
             p(a["pcol"]),
             p(a["jac2slot"]),
@@ -256,19 +307,17 @@ class NativeStepper:
             p(a["ucptr"]),
             p(a["ucrow"]),
             p(a["ucslot"]),
-            p(jth_colptr),
-            p(jth_row),
+            p(self._jth_colptr),
+            p(self._jth_row),
             self.jac_sp.nnz(),
             self.jth_sp.nnz(),
             lay.slices()["T2"].start,
         )
-
-    @property
-    def analysed(self) -> bool:
-        return self._problem is not None
+        return Pivots(problem, (*a.values(), self._jth_colptr, self._jth_row))
 
     def run(
         self,
+        pivots: PivotSet,
         h: np.ndarray,
         w: np.ndarray,
         current: np.ndarray,
@@ -288,8 +337,9 @@ class NativeStepper:
         tol: float = 1e-9,
         maxit: int = 20,
     ) -> tuple[int, int, int]:
-        """Advance in place; returns (steps done, code, Newton iterations); code 0 done, 1 a sample broke a
-        limit, -1 Newton failed, -2 singular matrix."""
+        """Advance in place with the pivot programs ``pivots``; returns (steps done, code, Newton iterations);
+        code 0 done, 1 a sample broke a limit, -1 Newton failed, -2 a pivot of ``pivots.step`` vanished, -5 one of
+        ``pivots.zero`` (the state is then that before the failed step), -4 no right-limit solution."""
         lay = self.model.layout
         ns = len(sel)
         d = lambda x: np.ascontiguousarray(x, dtype=np.float64)  # noqa: E731
@@ -301,9 +351,9 @@ class NativeStepper:
         code = _INT(0)
         iters = _INT(0)
         pd = lambda x: x.ctypes.data_as(_PD)  # noqa: E731
-        problem = self._problem  # this run's pivot program, whatever another thread analyses meanwhile
         done = self.lib.bl_run(
-            ctypes.byref(problem),
+            ctypes.byref(pivots.step.problem),
+            ctypes.byref(pivots.zero.problem),
             _INT(len(h)),
             pd(h),
             pd(w),

@@ -72,6 +72,22 @@ def native_stepper(cell: Cell, mesh: Mesh, isothermal: bool):  # -> NativeSteppe
     return _NATIVE[key]
 
 
+def _no_right_limit(t: float, I_before: float, I_after: float, limits: dict[str, float]) -> str:
+    """Why a run ends when no algebraic state exists for the current that starts at a sample (all continuation
+    in the current failed). A larger discharge (charge) current than the cell can carry at this state has no
+    solution: the voltage would collapse past the limit before the current is reached (the fold of the
+    voltage–current curve), which is where a tester stops. Currents in the model's sign (positive = discharge)."""
+    if I_after > max(I_before, 0.0):
+        return (
+            f"V < {limits['V_min']:g} (no solution at {-I_after:.4g} A at t = {t:.6g} s: more than the cell can carry)"
+        )
+    if I_after < min(I_before, 0.0):
+        return (
+            f"V > {limits['V_max']:g} (no solution at {-I_after:.4g} A at t = {t:.6g} s: more than the cell can take)"
+        )
+    return f"solver: no right-limit solution at t = {t:.6g} s"
+
+
 def run_native(
     stepper,
     t: np.ndarray,
@@ -119,15 +135,16 @@ def run_native(
                 S[lay.slices()["ce"], j] = (spec.upper - spec.lower) / C_SCALE
     Sp = S.copy()
     lim = np.array([limits["V_min"], limits["V_max"], limits["T_max"]])
-    if not stepper.analysed:
-        stepper.analyse_at(y, x0, x0, np.array([1.0, 0.0, I_dis[0] or float(model.cell["Q_nom"]), T_amb]), th)
+    pivots = stepper.base_pivots(th)
     pos = 0
     ended_by = None
+    kept_beyond = True  # whether the sample that ended the run was written (then it is dropped)
     n_iter = 0
-    reanalysed = -1
+    reanalysed: tuple[int, int] = (-1, 0)
     while pos < h.size:
         sl_ = slice(pos, None)
         done, code, it = stepper.run(
+            pivots,
             h[sl_],
             w[sl_],
             cur[sl_],
@@ -154,14 +171,28 @@ def run_native(
             ended_by = check_end(k, out[:, 0], out[:, 2], out[:, 3], out[:, 4], limits)
             break
         if code == -4:
-            ended_by = f"solver: no right-limit solution at t = {float(np.sum(h[:pos])):.6g} s"
+            ended_by = _no_right_limit(float(np.sum(h[:pos])), cur[pos - 1], out_I[pos - 1], limits)
             break
-        # a failed step: y, xp, S, Sp hold the last converged state; first a pivot order for this state,
-        # then smaller steps
-        if reanalysed != pos:
-            stepper.analyse_at(y, y[:nx], xp, np.array([max(h[pos], 1e-3), w[pos], cur[pos], T_amb]), th)
-            reanalysed = pos
+        # a failed step: y, xp, S, Sp hold the last converged state; first a pivot order for this state (this
+        # run's own: later runs start from the base again), then smaller steps. -5: a zero-length solve (the
+        # start, or the right limit at a current change) met the vanishing pivot
+        if reanalysed != (pos, code):
+            if code == -5:
+                u0 = np.array([0.0, 0.0, out_I[pos] if out_idx[pos] >= 0 else cur[pos], T_amb])
+                pivots = pivots.replace(zero=stepper.analyse_at(y, y[:nx], xp, u0, th))
+            else:
+                u1 = np.array([max(h[pos], 1e-3), w[pos], cur[pos], T_amb])
+                pivots = pivots.replace(step=stepper.analyse_at(y, y[:nx], xp, u1, th))
+            reanalysed = (pos, code)
             continue
+        if code == -5:  # still singular: the state before the step is kept, its sample not written
+            t_fail = float(np.sum(h[: pos + 1]))
+            if out_idx[pos] >= 0:
+                ended_by = _no_right_limit(t_fail, cur[pos], out_I[pos], limits)
+                kept_beyond = False
+            else:
+                ended_by = f"solver: singular zero-length solve at t = {t_fail:.6g} s"
+            break
         hb = h[pos]
         if hb < 1e-6:
             ended_by = f"solver: Newton did not converge at t = {float(np.sum(h[:pos])):.6g} s"
@@ -172,7 +203,7 @@ def run_native(
     # samples written before the stop
     written = out_idx[:pos][out_idx[:pos] >= 0]
     n_keep = int(written.max()) + 1 if written.size else 0
-    if ended_by is not None and ended_by.startswith(("V ", "T_", "surface", "solver: no right-limit")):
+    if kept_beyond and ended_by is not None and ended_by.startswith(("V ", "T_", "surface", "solver: no right-limit")):
         n_keep -= 1  # the sample beyond the limit (or without a solution) is not part of the result
     V, T1, T2, smin, smax = (out[:n_keep, j] for j in range(5))
     return Trajectory(

@@ -237,10 +237,13 @@ static void output(const Problem *P, const double *y, const double *u, const dou
 
 /* Run steps [0, nsteps). State in/out: y[n], xp[nx], S[nx*ns], Sp[nx*ns] (column-major per parameter),
  * Sy[n*ns] work/out; sensitivity arrays row-major (S[i*ns + j]). sched: h, w, I per step; out_idx[k] >= 0: write sample out_idx[k] after step k with the
- * right-limit current out_I[k]. Returns nsteps on success, else the index of the failed step (and *code:
- * -1 Newton, -2 singular), or the number of steps done when a sample broke a limit (*code = 1) or its
- * right-limit solve failed (*code = -4). */
-int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const double *I, const double *Tamb,
+ * right-limit current out_I[k]. P: the pivot program of steps with h > 0; P0: that of zero-length solves (the
+ * consistent start and the right limits), whose Jacobian has other values. Returns nsteps on success, else the
+ * index of the failed step (and *code: -1 Newton, -2 singular with P, -5 singular with P0; the state is that
+ * before the failed step), or the number of steps done when a sample broke a limit (*code = 1) or its right-limit
+ * solve failed otherwise (*code = -4). */
+int bl_run(const Problem *P, const Problem *P0, int nsteps, const double *h, const double *w, const double *I,
+           const double *Tamb,
            const int *out_idx, const double *out_I, const double *th, const int *sel, int ns, double tol,
            int maxit, const double *limits, double *y, double *xp, double *S, double *Sp, double *Sy, double *out, double *outdV,
            double *outdT2, int *code, int *iters) {
@@ -251,7 +254,9 @@ int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const
   double *c = malloc(sizeof(double) * (size_t)n * (ns > 0 ? ns : 1));
   double *xn = malloc(sizeof(double) * nx), *jnz = malloc(sizeof(double) * (P->jac_nnz + 1));
   double *jth = malloc(sizeof(double) * (P->jth_nnz + 1));
-  double *lu = malloc(sizeof(double) * P->nslot), *lu0 = malloc(sizeof(double) * P->nslot);
+  double *lu = malloc(sizeof(double) * P->nslot), *lu0 = malloc(sizeof(double) * P0->nslot);
+  double *xp_save = malloc(sizeof(double) * nx);
+  double *S_save = malloc(sizeof(double) * nsx), *Sp_save = malloc(sizeof(double) * nsx);
   double *y0 = malloc(sizeof(double) * n), *yprev = malloc(sizeof(double) * n);
   int have_right = 0;
   double *Sy0 = malloc(sizeof(double) * (size_t)n * (ns > 0 ? ns : 1));
@@ -275,13 +280,22 @@ int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const
       memcpy(ynew, y, sizeof(double) * n);
     }
     have_right = 0;
-    it = newton(P, ynew, xn, xp, u, th, lu, &have_lu, R, yt, Rt, jnz, c, tol, maxit);
-    if (it < 0) { *code = it; ret = k; break; }
+    /* zero-length solves have a pivot program (and chord matrix) of their own */
+    const Problem *Pk = h[k] > 0.0 ? P : P0;
+    double *luk = h[k] > 0.0 ? lu : lu0;
+    int *hlk = h[k] > 0.0 ? &have_lu : &have_lu0;
+    int right = out_idx[k] >= 0 && out_I[k] != I[k];
+    if (right) { /* kept to undo this step if its right limit meets a vanishing pivot */
+      memcpy(xp_save, xp, sizeof(double) * nx);
+      if (ns) { memcpy(S_save, S, sizeof(double) * nsx); memcpy(Sp_save, Sp, sizeof(double) * nsx); }
+    }
+    it = newton(Pk, ynew, xn, xp, u, th, luk, hlk, R, yt, Rt, jnz, c, tol, maxit);
+    if (it < 0) { *code = (it == -2 && Pk == P0) ? -5 : it; ret = k; break; }
     *iters += it;
     if (ns) {
-      int s = sens(P, ynew, xn, xp, u, th, sel, ns, S, Sp, Sy, lu, jnz, jth, c);
-      if (s) { *code = s; ret = k; break; }
-      have_lu = 1; /* the exact Jacobian at the solution is the next chord matrix */
+      int s = sens(Pk, ynew, xn, xp, u, th, sel, ns, S, Sp, Sy, luk, jnz, jth, c);
+      if (s) { *code = Pk == P0 ? -5 : s; ret = k; break; }
+      *hlk = 1; /* the exact Jacobian at the solution is the next chord matrix */
       if (h[k] > 0) memcpy(Sp, S, sizeof(double) * nsx);
       memcpy(S, Sy, sizeof(double) * nsx); /* the x rows come first in row-major Sy */
     }
@@ -297,22 +311,34 @@ int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const
         /* right limit: algebraic re-solve with the new current (a zero-length step) */
         double u0[4] = {0.0, 0.0, out_I[k], Tamb[k]};
         memcpy(y0, y, sizeof(double) * n);
-        it = newton(P, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
-        if (it < 0) {
-          /* a large current step: continuation in the current from the left limit */
+        it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
+        int beyond = 0;
+        if (it == -1) {
+          /* a large current step: continuation in the current from the left limit; a voltage beyond the limits
+             on the way means the cell cannot carry the new current (a tester stops there: a limit, not a
+             solver failure) */
           memcpy(y0, y, sizeof(double) * n);
           for (int q = 1; q <= 8; ++q) {
             u0[2] = I[k] + (out_I[k] - I[k]) * q / 8.0;
-            it = newton(P, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
+            it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
             if (it < 0) break;
+            output(P0, y0, u0, th, sel, 0, Sy0, o, 0, 0, vy, vth);
+            if (!(o[0] >= limits[0] && o[0] <= limits[1])) { beyond = 1; break; }
           }
+        }
+        if (beyond) { *code = 1; ret = k + 1; break; }
+        if (it >= 0 && ns && sens(P0, y0, y, xp, u0, th, sel, ns, S, Sp, Sy0, lu0, jnz, jth, c)) it = -2;
+        if (it == -2) { /* a vanishing pivot: undo the step, so the caller can re-analyse P0 and redo it */
+          memcpy(y, yprev, sizeof(double) * n);
+          memcpy(xp, xp_save, sizeof(double) * nx);
+          if (ns) { memcpy(S, S_save, sizeof(double) * nsx); memcpy(Sp, Sp_save, sizeof(double) * nsx); }
+          *code = -5;
+          ret = k;
+          break;
         }
         /* the step itself converged: the state has advanced, so a failure here ends the run */
         if (it < 0) { *code = -4; ret = k + 1; break; }
-        if (ns) {
-          if (sens(P, y0, y, xp, u0, th, sel, ns, S, Sp, Sy0, lu0, jnz, jth, c)) { *code = -2; ret = k; break; }
-          have_lu0 = 1;
-        }
+        if (ns) have_lu0 = 1;
         output(P, y0, u0, th, sel, ns, Sy0, o, outdV + (size_t)m * ns, outdT2 + (size_t)m * ns, vy, vth);
         have_right = 1;
       }
@@ -325,6 +351,6 @@ int bl_run(const Problem *P, int nsteps, const double *h, const double *w, const
     }
   }
   free(ynew); free(R); free(yt); free(Rt); free(c); free(xn); free(jnz); free(jth); free(lu); free(lu0); free(y0); free(yprev);
-  free(Sy0); free(vy); free(vth);
+  free(Sy0); free(vy); free(vth); free(xp_save); free(S_save); free(Sp_save);
   return ret;
 }

@@ -261,3 +261,24 @@ def test_bpx_failing_validation_names_the_field(nmc_bpx: Path, tmp_path: Path) -
     bad.write_text(json.dumps(data))
     with pytest.raises(InputError, match="(?i)porosity"):
         Cell.load(bad)
+
+
+def test_a_current_step_on_a_flat_ocp_cell(shared_data: Path) -> None:
+    """The LFP BPX cell (flat OCP) under 0.5 A from rest: the right limit at the step has its own pivot order."""
+    cell = Cell.from_bpx(shared_data / "bpx" / "lfp_18650_cell_BPX.json")
+    t = np.arange(0.0, 121.0)
+    res = battlab.simulate(cell, Profile(t, np.where(t > 10, -0.5, 0.0)), soc0=0.5)
+    assert res.ended_by is None and res.t.size == t.size
+    assert 3.0 < res.voltage[-1] < res.voltage[0]
+
+
+def test_more_current_than_the_cell_can_carry_is_a_voltage_limit(nca18650: Cell) -> None:
+    """Cold and low, a drive cycle's peak has no DFN solution: the voltage would collapse past V_min, which is
+    where a tester stops (not a solver failure)."""
+    from protocols import Library
+
+    lib = Library.build()
+    for soc0, peak_at in ((0.3, 1562), (0.1, 28)):
+        res = battlab.simulate(nca18650, lib[721], soc0=soc0, ambient=263.15, v_limits=(2.0, 4.5))
+        assert res.ended_by is not None and res.ended_by.startswith("V < 2 (no solution at"), res.ended_by
+        assert res.t.size == peak_at and np.isfinite(res.voltage).all()
