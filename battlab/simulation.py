@@ -48,6 +48,10 @@ class Result:
         return self.ended_by is None
 
 
+#: [V] a voltage this close to a limit is on it, not beyond
+LIMIT_ROUNDOFF = 1e-9
+
+
 def simulate(
     cell: Cell,
     profile: Profile,
@@ -92,7 +96,10 @@ def simulate(
     theta_bar = np.array([cell.normalised(n) for n in parameters.NAMES])
     sel = [parameters.NAMES.index(n) for n in names]
     vmin, vmax = v_limits or (float(cell["V_min"]), float(cell["V_max"]))
-    limits = {"V_min": vmin, "V_max": vmax, "T_max": float(cell["T_max"])}
+    if not (np.isfinite(vmin) and np.isfinite(vmax) and vmin < vmax):
+        raise InputError(f"v_limits must be finite with V_min < V_max, got {v_limits}")
+    # a state on a limit to round-off (a rest at 100 % SOC: OCV = V_max) is within it
+    limits = {"V_min": vmin - LIMIT_ROUNDOFF, "V_max": vmax + LIMIT_ROUNDOFF, "T_max": float(cell["T_max"])}
     t = profile.t - profile.t[0]
     args = (t, to_model_current(profile.current), float(ambient), theta_bar, soc0, float(ambient if T0 is None else T0))
     stepper = _native(cell, mesh, isothermal) if backend in ("native", "auto") else None

@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from protocols.errors import InputError
 from protocols.profile import Profile
+
+if TYPE_CHECKING:
+    from battlab.cell import Cell
 
 
 @click.command("simulate")
@@ -15,7 +20,15 @@ from protocols.profile import Profile
 @click.argument("profile")
 @click.option("--soc0", type=float, default=None, help="Start SOC in [0, 1] (default: from the profile, else 1).")
 @click.option("--ambient", type=float, default=25.0, show_default=True, help="Ambient temperature [degC].")
+@click.option("--T0", "t0", type=float, default=None, help="Initial cell temperature [degC] (default: the ambient).")
 @click.option("--isothermal", is_flag=True, help="Hold the cell at the ambient temperature.")
+@click.option(
+    "--v-limits",
+    default=None,
+    metavar="MIN,MAX",
+    help="Stop outside these voltages [V] instead of the cell's window (to follow logged data through the "
+    "excursions it shows, e.g. regen at full charge).",
+)
 @click.option("--sens", default="", help="Comma-separated parameters for dV/dθ̄ (e.g. R_s_n,D_s_n) or 'all'.")
 @click.option(
     "-o",
@@ -25,7 +38,15 @@ from protocols.profile import Profile
     help="OUT.bdf.csv or OUT.h5 (BDF column names, current positive = charge).",
 )
 def simulate(
-    cell: str, profile: str, soc0: float | None, ambient: float, isothermal: bool, sens: str, output: str
+    cell: str,
+    profile: str,
+    soc0: float | None,
+    ambient: float,
+    t0: float | None,
+    isothermal: bool,
+    v_limits: str | None,
+    sens: str,
+    output: str,
 ) -> None:
     """Simulate CELL (a built-in name or a BPX file) under PROFILE.
 
@@ -36,31 +57,96 @@ def simulate(
 
     from battlab import parameters
     from battlab.cell import Cell
-    from battlab.io.results import write_result
+    from battlab.io.results import check_output_path, write_result
     from battlab.simulation import simulate as run
 
+    check_output_path(output)
     c = Cell.load(cell)
     prof = _profile(profile)
     if soc0 is None:
         soc0 = prof.soc0 if prof.soc0 is not None else 1.0
     names = list(parameters.NAMES) if sens.strip() == "all" else [s.strip() for s in sens.split(",") if s.strip()]
-    if not -40.0 <= ambient <= 80.0:
-        raise InputError(f"--ambient {ambient} degC is outside -40..80 degC")
+    for name, value in (("--ambient", ambient), ("--T0", t0)):
+        if value is not None and not -40.0 <= value <= 80.0:
+            raise InputError(f"{name} {value} degC is outside -40..80 degC")
+    _check_current(prof, c, profile)
+    limits = _v_limits(v_limits) if v_limits is not None else None
     console = Console(stderr=True)
+    _announce_compiles()
+    T0 = None if t0 is None else t0 + 273.15
     with console.status(f"simulating {Path(profile).name} on {c.name} ({prof.duration:.0f} s)"):
-        res = run(c, prof, soc0=soc0, ambient=ambient + 273.15, isothermal=isothermal, sensitivities=names)
-    out = write_result(
-        res,
-        output,
-        ambient + 273.15,
-        {"cell": c.name, "cell_hash": c.hash(), "profile": str(profile), "soc0": soc0, "isothermal": isothermal},
-    )
+        res = run(
+            c,
+            prof,
+            soc0=soc0,
+            ambient=ambient + 273.15,
+            isothermal=isothermal,
+            sensitivities=names,
+            T0=T0,
+            v_limits=limits,
+        )
+    timing = f"build {res.stats['build_seconds']:.2f} s, solve {res.stats['solve_seconds']:.2f} s"
+    if res.t.size < 2:
+        raise InputError(
+            f"{profile}: the run ends at its first sample ({res.ended_by}), nothing to write: check --soc0 "
+            f"({soc0:g}) and the current's sign (positive = charge)"
+        )
+    meta = {"cell": c.name, "cell_hash": c.hash(), "profile": str(profile), "soc0": soc0, "isothermal": isothermal}
+    meta |= {"T0_degC": t0, "v_limits": list(limits) if limits else None}
+    out = write_result(res, output, ambient + 273.15, meta)
+    covered = f"{res.t.size} of {prof.t.size} samples"
+    if res.ended_by is not None and res.ended_by.startswith("solver"):
+        raise click.ClickException(
+            f"{profile}: the simulation failed at t = {res.t[-1]:.1f} s ({res.ended_by}); the {covered} before "
+            f"it are in {out} ({timing})"
+        )
     end = "completed" if res.ended_by is None else f"ended early: {res.ended_by} at t = {res.t[-1]:.1f} s"
     console.print(
-        f"{out}: {res.t.size} samples, V {res.voltage.min():.4f}–{res.voltage.max():.4f} V, "
-        f"T_surface max {res.T_surface.max() - 273.15:.2f} degC; {end} "
-        f"(build {res.stats['build_seconds']:.2f} s, solve {res.stats['solve_seconds']:.2f} s)"
+        f"{out}: {covered}, V {res.voltage.min():.4f}–{res.voltage.max():.4f} V, "
+        f"T_surface max {res.T_surface.max() - 273.15:.2f} degC; {end} ({timing})",
+        soft_wrap=True,
     )
+
+
+#: a profile above this many C for the cell is taken for a unit mistake (mA, or another cell's profile)
+MAX_C_RATE = 20.0
+
+
+def _check_current(prof: Profile, cell: Cell, where: str) -> None:
+    q = float(cell["Q_nom"])
+    peak = float(abs(prof.current).max())
+    if peak > MAX_C_RATE * q:
+        raise InputError(
+            f"{where}: the current reaches {peak:.4g} A = {peak / q:.0f}C of the {q:g} Ah cell {cell.name!r} (more "
+            f"than {MAX_C_RATE:g}C): wrong units (mA?) or another cell's profile"
+        )
+
+
+def _v_limits(text: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"--v-limits {text!r}: expected MIN,MAX in volts, e.g. 2.5,4.3") from None
+    if not 0.0 <= lo < hi <= 10.0:
+        raise InputError(f"--v-limits {text!r}: need 0 <= MIN < MAX <= 10 V")
+    return lo, hi
+
+
+class _CompileNotice(logging.Handler):
+    """Echo the model's compile notice on stderr (the first run of a cell and mesh on a machine takes 10–30 s)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        click.echo(record.getMessage(), err=True)
+
+
+_NOTICE = _CompileNotice(logging.INFO)
+
+
+def _announce_compiles() -> None:
+    logger = logging.getLogger("battlab.model")
+    if _NOTICE not in logger.handlers:
+        logger.addHandler(_NOTICE)
+        logger.setLevel(logging.INFO)
 
 
 def _profile(spec: str) -> Profile:

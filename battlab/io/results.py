@@ -36,6 +36,19 @@ def result_columns(res: Result, ambient_K: float) -> dict[str, np.ndarray]:
     return cols
 
 
+SUFFIXES = (".bdf.csv", ".csv", ".h5", ".hdf5")
+
+
+def check_output_path(path: str | Path) -> Path:
+    """An output path :func:`write_result` can write, checked before the work: suffix and directory."""
+    path = Path(path)
+    if not path.name.endswith(SUFFIXES):
+        raise InputError(f"{path}: output must end in .bdf.csv, .csv, .h5 or .hdf5")
+    if not path.parent.is_dir():
+        raise InputError(f"{path}: directory {path.parent} does not exist")
+    return path
+
+
 def write_result(res: Result, path: str | Path, ambient_K: float, meta: dict[str, Any]) -> Path:
     """Write ``.bdf.csv``/``.csv`` (with a JSON metadata sidecar ``<name>.meta.json``) or ``.h5``/``.hdf5``."""
     path = Path(path)

@@ -220,3 +220,76 @@ def test_bad_input_through_the_installed_command(bad_files: dict[str, str], tmp_
         timeout=300,
     )
     assert_one_line_error(proc.returncode, proc.stdout, proc.stderr, "nan.csv")
+
+
+# --- what a new user meets ----------------------------------------------------------------------------------------
+
+
+def test_a_rest_from_full_charge_is_not_beyond_the_upper_limit(tmp_path: Path) -> None:
+    """The OCV at 100 % SOC equals V_max to round-off: a rest from there runs to its end."""
+    Profile(np.arange(0.0, 61.0), np.zeros(61)).to_csv(tmp_path / "rest.csv")
+    r = invoke("simulate", "nca18650", str(tmp_path / "rest.csv"), "--soc0", "1", "-o", str(tmp_path / "r.csv"))
+    assert r.exit_code == 0, r.output
+    assert pd.read_csv(tmp_path / "r.csv").shape[0] == 61 and "61 of 61 samples" in r.output
+
+
+def test_its_own_output_as_the_profile_without_soc0(profile_csv: Path, tmp_path: Path) -> None:
+    """A result CSV (more columns than a profile) fed back without --soc0 starts from the default SOC (1): its
+    2C charge at the first change of current is beyond V_max at once, said in one line, nothing written."""
+    first = tmp_path / "first.bdf.csv"
+    assert invoke("simulate", "nca18650", str(profile_csv), "--soc0", "0.5", "-o", str(first)).exit_code == 0
+    before = sorted(p.name for p in tmp_path.iterdir())
+    r = invoke("simulate", "nca18650", str(first), "-o", str(tmp_path / "again.csv"))
+    assert r.exit_code == 2 and "Traceback" not in r.output and len(r.output.strip().splitlines()) == 1
+    assert "the run ends at its first sample (V > 4.2)" in r.output and "check --soc0 (1)" in r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    r = invoke("simulate", "nca18650", str(first), "--soc0", "0.5", "-o", str(tmp_path / "again.csv"))
+    assert r.exit_code == 0 and (tmp_path / "again.csv").is_file()
+
+
+def test_a_current_in_the_wrong_units_is_one_line_and_no_file(tmp_path: Path) -> None:
+    Profile.from_segments(np.array([10.0, 30.0]), np.array([0.0, -1000.0])).to_csv(tmp_path / "mA.csv")
+    r = invoke("simulate", "nca18650", str(tmp_path / "mA.csv"), "--soc0", "0.5", "-o", str(tmp_path / "o.csv"))
+    assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1
+    assert "mA.csv: the current reaches 1000 A = 370C" in r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mA.csv"]
+
+
+def test_an_output_in_a_missing_directory_is_one_line(profile_csv: Path, tmp_path: Path) -> None:
+    r = invoke("simulate", "nca18650", str(profile_csv), "-o", str(tmp_path / "nodir" / "o.csv"))
+    assert r.exit_code == 2 and "does not exist" in r.output and len(r.output.strip().splitlines()) == 1
+
+
+def test_a_failed_simulation_exits_non_zero(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A solver failure is not a result: exit 1, saying where; the samples before it are kept, and said so."""
+    import battlab.simulation as simulation
+
+    real = simulation.solver.run_native
+
+    def failing(*args, **kwargs):  # the real run, reported as failing after its 40th sample
+        traj = real(*args, **kwargs)
+        cut = {f: getattr(traj, f)[:40] for f in ("voltage", "T1", "T2", "sto_min", "sto_max")}
+        return type(traj)(**{**traj.__dict__, **cut, "n_samples": 40, "ended_by": "solver: test failure"})
+
+    monkeypatch.setattr(simulation.solver, "run_native", failing)
+    Profile(np.arange(0.0, 61.0), np.full(61, -1.0)).to_csv(tmp_path / "p.csv")
+    r = invoke("simulate", "nca18650", str(tmp_path / "p.csv"), "--soc0", "0.5", "-o", str(tmp_path / "o.csv"))
+    assert r.exit_code == 1 and "the simulation failed at t = 39.0 s (solver: test failure)" in r.output
+    assert "the 40 of 61 samples before it are in" in r.output and pd.read_csv(tmp_path / "o.csv").shape[0] == 40
+
+
+def test_v_limits_follow_logged_excursions_and_T0_sets_the_start(tmp_path: Path) -> None:
+    """Regen at full charge goes above 4.2 V: with --v-limits the prediction follows it; --T0 starts warm."""
+    t = np.arange(0.0, 301.0)
+    Profile(t, np.where((t // 20) % 2 == 0, -2.0 * ONE_C, 2.0 * ONE_C)).to_csv(tmp_path / "regen.csv")
+    base = ["simulate", "nca18650", str(tmp_path / "regen.csv"), "--soc0", "0.99"]
+    stopped = invoke(*base, "-o", str(tmp_path / "a.csv"))
+    assert stopped.exit_code == 0 and "ended early: V > 4.2" in stopped.output
+    r = invoke(*base, "--v-limits", "2.5,4.5", "--T0", "35", "-o", str(tmp_path / "b.csv"))
+    assert r.exit_code == 0 and "301 of 301 samples" in r.output, r.output
+    df = pd.read_csv(tmp_path / "b.csv")
+    assert df["Voltage / V"].max() > 4.2
+    assert df["Surface Temperature T1 / degC"].iloc[0] == pytest.approx(35.0)
+    assert df["Surface Temperature T1 / degC"].iloc[-1] < 33.0  # cooling towards the 25 degC ambient
+    bad = invoke(*base, "--v-limits", "4.5", "-o", str(tmp_path / "c.csv"))
+    assert bad.exit_code == 2 and "expected MIN,MAX" in bad.output
