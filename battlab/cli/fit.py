@@ -40,6 +40,13 @@ import click
 )
 @click.option("--rated-capacity", type=float, default=None, help="Set the cell's 1C capacity [Ah].")
 @click.option("--soc0", type=float, default=None, help="Start SOC of data that do not start at rest.")
+@click.option(
+    "--ambient",
+    "ambients",
+    multiple=True,
+    metavar="[FILE=]DEGC",
+    help="Ambient temperature [degC] of data that do not log it: FILE=DEGC for one file (repeat), DEGC for all.",
+)
 @click.option("--dt", type=float, default=1.0, show_default=True, help="Resample dynamic data to this step [s].")
 @click.option("--max-iter", type=int, default=40, show_default=True, help="Function evaluations per stage.")
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
@@ -52,6 +59,7 @@ def fit(
     ocp_terms: int,
     rated_capacity: float | None,
     soc0: float | None,
+    ambients: tuple[str, ...],
     dt: float,
     max_iter: int,
     fix_sign: bool,
@@ -79,6 +87,7 @@ def fit(
         ocp_terms=ocp_terms,
         rated_capacity=rated_capacity,
         soc0=soc0,
+        ambient=parse_ambients(ambients),
         dt=dt,
         max_iter=max_iter,
         fix_sign=fix_sign,
@@ -116,6 +125,26 @@ def fit(
     click.echo(f"wrote {bpx} and {summary}")
 
 
+def parse_ambients(values: tuple[str, ...]) -> dict[str, float] | None:
+    """``--ambient`` values ``FILE=DEGC`` or ``DEGC`` as {file or "*": kelvin}."""
+    from protocols.errors import InputError
+
+    out: dict[str, float] = {}
+    for text in values:
+        key, _, value = text.rpartition("=")
+        try:
+            degc = float(value)
+        except ValueError:
+            raise InputError(f"--ambient {text!r}: expected DEGC or FILE=DEGC, e.g. 0degC_HWFET.mat=0") from None
+        if not -40.0 <= degc <= 80.0:
+            raise InputError(f"--ambient {text!r}: {degc} degC is outside -40..80 degC")
+        key = key or "*"
+        if key in out:
+            raise InputError(f"--ambient {text!r}: {'all files' if key == '*' else key} given twice")
+        out[key] = degc + 273.15
+    return out or None
+
+
 def _print_estimates(r: Any) -> None:
     """The final stage's estimates: value, 95 % interval, flags."""
     from rich.console import Console
@@ -140,6 +169,13 @@ def _print_estimates(r: Any) -> None:
 @click.argument("data", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--cell", "cells", multiple=True, required=True, help="A cell to score (repeat for several).")
 @click.option("--soc0", type=float, default=None, help="Start SOC of data that do not start at rest.")
+@click.option(
+    "--ambient",
+    "ambients",
+    multiple=True,
+    metavar="[FILE=]DEGC",
+    help="Ambient temperature [degC] of data that do not log it: FILE=DEGC for one file (repeat), DEGC for all.",
+)
 @click.option("--dt", type=float, default=1.0, show_default=True, help="Resample to this step [s].")
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
 @click.option(
@@ -151,15 +187,21 @@ def _print_estimates(r: Any) -> None:
     help="Directory for the figures and summary.json.",
 )
 def validate(
-    data: tuple[str, ...], cells: tuple[str, ...], soc0: float | None, dt: float, fix_sign: bool, output: str
+    data: tuple[str, ...],
+    cells: tuple[str, ...],
+    soc0: float | None,
+    ambients: tuple[str, ...],
+    dt: float,
+    fix_sign: bool,
+    output: str,
 ) -> None:
     """Print the voltage RMSE of each CELL on each DATA file and save the figures (Figs. 7 and 9)."""
     from battlab.identify import workflow
     from battlab.identify.validation import format_table
 
-    rep = workflow.validate(data, cells, soc0=soc0, dt=dt, fix_sign=fix_sign)
+    rep = workflow.validate(data, cells, soc0=soc0, ambient=parse_ambients(ambients), dt=dt, fix_sign=fix_sign)
     for w in rep.warnings:
         click.echo(f"warning: {w}", err=True)
-    click.echo(format_table(rep.table))
+    click.echo(format_table(rep.table, rep.coverage))
     rep.write(output)
     click.echo(f"figures and summary.json in {output}")

@@ -7,7 +7,8 @@
 * Start SOC: ``meta["soc0"]`` if logged; else from the first sample's voltage when the cell rests there
   (rest voltage ↔ OCV of the cell), else an error. Later segments add the charge passed
   (``Net Capacity / Ah`` if logged, else ∫I dt) divided by the cell's capacity.
-* Ambient: mean chamber temperature (or 25 °C); T0: the surface temperature at the segment's start.
+* Ambient: the given ``ambient``, else the mean chamber temperature, else an error (never a guess); T0: the
+  surface temperature at the segment's start.
 * Weights: Q from the noise model (eqs. 37–40) plus quantisation (:func:`battlab.identify.fit.variance_of`).
 * Data and cell must match (:func:`check_cell`): voltages more than ``V_TOL`` outside the cell's window, or a rest
   voltage outside its OCV range, are an error naming the samples; more charge passed than the cell holds is a
@@ -96,6 +97,7 @@ def experiments_from_data(
     soc0: float | None = None,
     max_gap: float = 60.0,
     rest_current: float | None = None,
+    ambient: float | None = None,
 ) -> list[Experiment]:
     """The fit experiments of one logged test (one per segment between gaps); see the module docstring."""
     where = data.source or data.name
@@ -124,7 +126,9 @@ def experiments_from_data(
     ah = data.columns.get(NET_CAPACITY)
     if ah is None:
         ah = np.concatenate([[0.0], np.cumsum(data.current[:-1] * np.diff(data.t))]) / 3600.0
-    amb = data.ambient_K()
+    amb = float(ambient) if ambient is not None else data.ambient_K()
+    if not 200.0 < amb < 400.0:
+        raise InputError(f"{where}: ambient {amb} K is not a temperature in kelvin (200–400 K)")
     surf = data.temperature_K(SURFACE)
     out = []
     for n, sl in enumerate(segs, start=1):

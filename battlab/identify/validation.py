@@ -67,14 +67,23 @@ def rmse_table(
     return table, preds
 
 
-def format_table(table: Mapping[str, Mapping[str, float]]) -> str:
-    """Plain-text RMSE table: one row per experiment, one column per cell [mV]."""
+def format_table(
+    table: Mapping[str, Mapping[str, float]], coverage: Mapping[str, Mapping[str, float]] | None = None
+) -> str:
+    """Plain-text RMSE table: one row per experiment, one column per cell [mV]; a prediction that stopped early
+    shows the share of the data it covered, e.g. ``12.34 (82%)``."""
     labels = list(table)
     names = list(next(iter(table.values()))) if table else []
     w = max([len(n) for n in names] + [10])
-    lines = [f"{'RMSE [mV]':<{w}}  " + "  ".join(f"{lab:>12}" for lab in labels)]
+
+    def cell(lab: str, n: str) -> str:
+        text = f"{table[lab][n]:.2f}"
+        share = (coverage or {}).get(lab, {}).get(n, 1.0)
+        return f"{text} ({100 * share:.0f}%)" if share < 1.0 else text
+
+    lines = [f"{'RMSE [mV]':<{w}}  " + "  ".join(f"{lab:>14}" for lab in labels)]
     for n in names:
-        lines.append(f"{n:<{w}}  " + "  ".join(f"{table[lab][n]:12.2f}" for lab in labels))
+        lines.append(f"{n:<{w}}  " + "  ".join(f"{cell(lab, n):>14}" for lab in labels))
     return "\n".join(lines)
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from battlab.cell import Cell
+from protocols.errors import InputError
 
 
 def is_ocv_test(data: Any, q_nom: float) -> bool:
@@ -35,6 +36,32 @@ def load_all(paths: Sequence[str | Path], *, fix_sign: bool = False) -> tuple[li
         warnings.simplefilter("always")
         loaded = [load_data(p, fix_sign=fix_sign) for p in paths]
     return loaded, [str(w.message) for w in caught]
+
+
+#: ambient temperatures [K] for logged data that do not log it: one value for all files, or per file (keys: the
+#: path as given, its file name, or the data's name; "*" for all others)
+Ambient = Mapping[str, float] | float | None
+
+
+def ambient_of(data: Any, ambient: Ambient) -> float | None:
+    """The ambient [K] given for ``data`` (None: use what the data logged)."""
+    if ambient is None or isinstance(ambient, int | float):
+        return None if ambient is None else float(ambient)
+    source = str(data.source or "")
+    for key in (source, Path(source).name, data.name, "*"):
+        if key and key in ambient:
+            return float(ambient[key])
+    return None
+
+
+def check_ambient_keys(paths: Sequence[str | Path], ambient: Ambient) -> None:
+    """Every per-file ambient must name one of the data files (a typo must not silently fall back)."""
+    if not isinstance(ambient, Mapping):
+        return
+    names = {str(p) for p in paths} | {Path(p).name for p in paths} | {Path(p).stem for p in paths} | {"*"}
+    unknown = [k for k in ambient if k not in names]
+    if unknown:
+        raise InputError(f"--ambient {unknown[0]}=…: no data file of that name (files: {', '.join(map(str, paths))})")
 
 
 def plan_groups(plan: Path) -> list[tuple[list[str], set[str]]]:
@@ -101,19 +128,22 @@ def fit(
     ocp_terms: int = 0,
     rated_capacity: float | None = None,
     soc0: float | None = None,
+    ambient: Ambient = None,
     dt: float = 1.0,
     max_iter: int = 40,
     fix_sign: bool = False,
     on_stage: Callable[[int, Any], None] | None = None,
 ) -> FitReport:
     """Identify the cell's parameters from logged data: equilibrium from an OCV test, then the dynamic
-    parameters by weighted LM, group by group and cumulatively (stages from ``plan`` or ``params``)."""
+    parameters by weighted LM, group by group and cumulatively (stages from ``plan`` or ``params``).
+    ``ambient`` [K]: for data that do not log it (see :data:`Ambient`); such data are refused otherwise."""
     from battlab.identify import fit as F
     from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
     from battlab.identify.experiments import experiments_from_data
     from battlab.identify.forward import ForwardModel
 
     cell = cell if isinstance(cell, Cell) else Cell.load(cell)
+    check_ambient_keys(data, ambient)
     loaded, warned = load_all(data, fix_sign=fix_sign)
     ocv = [d for d in loaded if is_ocv_test(d, float(cell["Q_nom"]))]
     dyn = [d for d in loaded if d not in ocv]
@@ -140,7 +170,9 @@ def fit(
     elif rated_capacity is not None:
         cell = cell.with_values(Q_nom=rated_capacity)
     if dyn:
-        exps = [e for d in dyn for e in experiments_from_data(d, cell, dt=dt, soc0=soc0)]
+        exps = [
+            e for d in dyn for e in experiments_from_data(d, cell, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
+        ]
         fm = ForwardModel(cell, v_margin=0.15)
         results = F.fit_groupwise(
             cell, stages(params, plan, exps), options=F.Options(max_nfev=max_iter), forward=fm, progress=on_stage
@@ -214,12 +246,16 @@ def json_default(obj: Any) -> Any:
 
 @dataclass
 class ValidationReport:
-    """RMSE [mV] per cell and data set, the errors, and each data set's predictions."""
+    """RMSE [mV] per cell and data set over the samples each prediction reached, the fraction it reached
+    (``coverage``, 1.0 unless the model stopped early) and why it stopped (``ended_by``), the errors, and each
+    data set's predictions (NaN where not reached)."""
 
     table: dict[str, dict[str, float]]
     errors: dict[str, np.ndarray]
     predictions: dict[str, tuple[Any, dict[str, np.ndarray]]]
     warnings: list[str] = field(default_factory=list)
+    coverage: dict[str, dict[str, float]] = field(default_factory=dict)
+    ended_by: dict[str, dict[str, str]] = field(default_factory=dict)
 
     def write(self, outdir: str | Path) -> Path:
         """Figures (Figs. 7 and 9) and ``summary.json`` in ``outdir``."""
@@ -231,7 +267,8 @@ class ValidationReport:
             plot_validation(e, preds, outdir / f"{name.replace('#', '_')}.png")
         plot_cdf(self.errors, outdir / "error_cdf.png", "validation: |voltage error|")
         path = outdir / "summary.json"
-        path.write_text(json.dumps({"rmse_mV": self.table}, indent=2))
+        summary = {"rmse_mV": self.table, "coverage": self.coverage, "ended_by": self.ended_by}
+        path.write_text(json.dumps(summary, indent=2, default=json_default))
         return path
 
 
@@ -244,29 +281,40 @@ def validate(
     cells: Sequence[str],
     *,
     soc0: float | None = None,
+    ambient: Ambient = None,
     dt: float = 1.0,
     fix_sign: bool = False,
 ) -> ValidationReport:
-    """The voltage RMSE of each cell on each data set (predictions from the data's start state)."""
+    """The voltage RMSE of each cell on each data set (predictions from the data's start state), over the
+    samples the prediction reached; each (cell, data set) is simulated on its own, so the order of the files
+    does not matter. ``ambient`` [K]: for data that do not log it (see :data:`Ambient`)."""
     from battlab.identify.experiments import experiments_from_data
-    from battlab.identify.fit import predict
+    from battlab.identify.fit import prediction
     from battlab.identify.forward import ForwardModel
 
+    check_ambient_keys(data, ambient)
     loaded, warned = load_all(data, fix_sign=fix_sign)
-    table: dict[str, dict[str, float]] = {}
-    errors: dict[str, np.ndarray] = {}
-    per_exp: dict[str, tuple[Any, dict[str, np.ndarray]]] = {}
+    rep = ValidationReport({}, {}, {}, warned)
     for spec in cells:
         cell = Cell.load(spec)
         label = cell_label(spec)
         fm = ForwardModel(cell, v_margin=0.15)
-        table[label] = {}
+        rep.table[label], rep.coverage[label], rep.ended_by[label] = {}, {}, {}
         errs = []
         for d in loaded:
-            for e in experiments_from_data(d, cell, dt=dt, soc0=soc0):
-                p = predict(fm, cell, e)
-                table[label][e.name] = float(1e3 * np.sqrt(np.nanmean((p - e.voltage) ** 2)))
-                errs.append(1e3 * (p - e.voltage))
-                per_exp.setdefault(e.name, (e, {}))[1][label] = p
-        errors[label] = np.concatenate(errs)
-    return ValidationReport(table, errors, per_exp, warned)
+            for e in experiments_from_data(d, cell, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient)):
+                p, why = prediction(fm, cell, e)
+                reached = np.isfinite(p)
+                err = 1e3 * (p[reached] - e.voltage[reached])
+                rep.table[label][e.name] = float(np.sqrt(np.mean(err**2))) if err.size else float("nan")
+                rep.coverage[label][e.name] = float(reached.mean())
+                if why is not None:
+                    rep.ended_by[label][e.name] = why
+                    rep.warnings.append(
+                        f"{e.name}: cell {label} stopped at {100 * reached.mean():.1f} % of the data ({why}); "
+                        "its RMSE covers that part only"
+                    )
+                errs.append(err)
+                rep.predictions.setdefault(e.name, (e, {}))[1][label] = p
+        rep.errors[label] = np.concatenate(errs) if errs else np.zeros(0)
+    return rep

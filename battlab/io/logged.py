@@ -69,12 +69,21 @@ class LoggedData:
         v = self.columns.get(column)
         return None if v is None else v + 273.15
 
-    def ambient_K(self, default: float = 298.15) -> float:
-        """The mean ambient (chamber) temperature [K], else ``meta["ambient_K"]``, else ``default``."""
+    def ambient_K(self, default: float | None = None) -> float:
+        """The mean ambient (chamber) temperature [K], else ``meta["ambient_K"]``, else ``default``; without any
+        an :class:`InputError` (a test simulated at a guessed ambient is a wrong prediction, not a warning)."""
         amb = self.temperature_K(AMBIENT)
         if amb is not None and np.isfinite(amb).any():
             return float(np.nanmean(amb))
-        return float(self.meta.get("ambient_K", default))
+        if "ambient_K" in self.meta:
+            return float(self.meta["ambient_K"])
+        if default is not None:
+            return float(default)
+        column = "empty" if amb is not None else "missing"
+        raise InputError(
+            f"{self.source or self.name}: no ambient temperature logged (column {AMBIENT!r} {column}): give it "
+            "(--ambient FILE=DEGC, or ambient= in Python)"
+        )
 
     def select(self, mask: np.ndarray | slice, name: str | None = None) -> LoggedData:
         """A subset of the samples (e.g. one step) as new data."""

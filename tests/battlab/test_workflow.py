@@ -14,7 +14,7 @@ from battlab import workflow
 from battlab.identify.forward import ForwardModel
 from battlab.identify.virtual import synthesize
 from battlab.io.bdf import write_bdf_csv
-from battlab.io.data import CURRENT, TIME, VOLTAGE, LoggedData
+from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE, LoggedData
 from protocols import Library
 
 IDS = [28, 37, 136, 541, 553, 583]  # 600 s profiles (pulses and sines from four start SOCs)
@@ -57,7 +57,8 @@ def _virtual_csv(tmp_path: Path, pid: int, seed: int) -> str:
     truth = cell.with_values(R_s_n=P.SPECS["R_s_n"].truth, R_s_p=P.SPECS["R_s_p"].truth)
     prof = Library.build()[pid]
     e = synthesize(ForwardModel(cell), truth, prof, prof.soc0, seed=seed)
-    data = LoggedData(f"p{pid}", {TIME: prof.t, VOLTAGE: e.voltage, CURRENT: prof.current}, {"soc0": prof.soc0})
+    cols = {TIME: prof.t, VOLTAGE: e.voltage, CURRENT: prof.current, AMBIENT: np.full(prof.t.size, 25.0)}
+    data = LoggedData(f"p{pid}", cols, {"soc0": prof.soc0})
     return str(write_bdf_csv(data, tmp_path / f"p{pid}.bdf.csv"))
 
 
@@ -74,3 +75,45 @@ def test_fit_and_validate_return_what_they_write(tmp_path: Path) -> None:
     assert val.table["cell"]["p37"] < val.table["nca18650"]["p37"]
     assert np.isfinite(val.errors["cell"]).all()
     assert json.loads(val.write(tmp_path / "v").read_text())["rmse_mV"] == val.table
+
+
+def _early_stop_csv(tmp_path: Path) -> str:
+    """Logged at 3.5 V while 3C is drawn for 25 min from half charge: the model empties the cell on the way."""
+    t = np.arange(0.0, 1501.0)
+    i = np.where(t < 10, 0.0, -3.0 * 2.7)
+    cols = {TIME: t, VOLTAGE: np.full(t.size, 3.5), CURRENT: i, AMBIENT: np.full(t.size, 25.0)}
+    return str(write_bdf_csv(LoggedData("drain", cols, {"soc0": 0.5}), tmp_path / "drain.bdf.csv"))
+
+
+def test_validate_scores_only_what_it_predicts_whatever_the_file_order(tmp_path: Path) -> None:
+    a, b = _virtual_csv(tmp_path, 19, 3), _early_stop_csv(tmp_path)
+    ab = workflow.validate([a, b], ["nca18650"])
+    ba = workflow.validate([b, a], ["nca18650"])
+    assert ab.table == ba.table and ab.coverage == ba.coverage
+    share = ab.coverage["nca18650"]["drain"]
+    assert 0.1 < share < 0.9 and ab.coverage["nca18650"]["p19"] == 1.0
+    assert ab.ended_by["nca18650"]["drain"].startswith(("V < ", "surface stoichiometry"))
+    e, preds = ab.predictions["drain"]
+    p = preds["nca18650"]
+    reached = np.isfinite(p)
+    assert reached.mean() == share and not reached[-1]  # nothing held flat after the stop
+    expected = 1e3 * np.sqrt(np.mean((p[reached] - e.voltage[reached]) ** 2))
+    assert ab.table["nca18650"]["drain"] == pytest.approx(expected, rel=1e-12)
+    assert any("stopped at" in w and "drain" in w for w in ab.warnings)
+    summary = json.loads(ab.write(tmp_path / "v").read_text())
+    assert summary["coverage"]["nca18650"]["drain"] == share
+
+
+def test_data_without_an_ambient_are_refused_unless_it_is_given(tmp_path: Path) -> None:
+    t = np.arange(0.0, 601.0)
+    cols = {TIME: t, VOLTAGE: np.full(t.size, 3.7), CURRENT: np.where(t < 10, 0.0, -1.0)}
+    path = str(write_bdf_csv(LoggedData("noamb", cols, {"soc0": 0.5}), tmp_path / "noamb.bdf.csv"))
+    with pytest.raises(battlab.InputError, match=r"noamb\.bdf\.csv: no ambient temperature logged"):
+        workflow.validate([path], ["nca18650"])
+    with pytest.raises(battlab.InputError, match=r"--ambient other\.csv=…: no data file of that name"):
+        workflow.validate([path], ["nca18650"], ambient={"other.csv": 273.15})
+    cold = workflow.validate([path], ["nca18650"], ambient={"noamb.bdf.csv": 273.15})
+    warm = workflow.validate([path], ["nca18650"], ambient=298.15)
+    e_cold, e_warm = cold.predictions["noamb"][0], warm.predictions["noamb"][0]
+    assert (e_cold.ambient, e_warm.ambient) == (273.15, 298.15)
+    assert cold.table["nca18650"]["noamb"] != warm.table["nca18650"]["noamb"]

@@ -13,7 +13,7 @@ from battlab.cli import main
 from battlab.identify.forward import ForwardModel
 from battlab.identify.virtual import synthesize
 from battlab.io.bdf import write_bdf_csv
-from battlab.io.data import CURRENT, TIME, VOLTAGE, LoggedData
+from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE, LoggedData
 from protocols.library import Library
 
 
@@ -22,7 +22,8 @@ def _virtual_csv(tmp_path, pid: int, seed: int) -> str:
     truth = cell.with_values(R_s_n=P.SPECS["R_s_n"].truth, R_s_p=P.SPECS["R_s_p"].truth)
     prof = Library.build()[pid]
     e = synthesize(ForwardModel(cell), truth, prof, prof.soc0, seed=seed)
-    data = LoggedData(f"p{pid}", {TIME: prof.t, VOLTAGE: e.voltage, CURRENT: prof.current}, {"soc0": prof.soc0})
+    cols = {TIME: prof.t, VOLTAGE: e.voltage, CURRENT: prof.current, AMBIENT: np.full(prof.t.size, 25.0)}
+    data = LoggedData(f"p{pid}", cols, {"soc0": prof.soc0})
     return str(write_bdf_csv(data, tmp_path / f"p{pid}.bdf.csv"))
 
 
@@ -113,7 +114,8 @@ def test_data_from_another_cell_is_one_line(tmp_path) -> None:
     assert r.exit_code == 2 and "rest voltage 4.320 V at sample 0 is outside" in r.output, r.output
     data = LoggedData("lfp", {TIME: t, VOLTAGE: v, CURRENT: i}, {})  # fits nothing like the model: says so
     p = write_bdf_csv(data, tmp_path / "lfp3.bdf.csv")
-    r = CliRunner().invoke(
-        main, ["fit", str(p), "--cell", "nca18650", "--params", "R_s_n", "-o", str(tmp_path / "c.json")]
-    )
+    args = ["fit", str(p), "--cell", "nca18650", "--params", "R_s_n", "-o", str(tmp_path / "c.json")]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2 and "no ambient temperature logged" in r.output and "lfp3.bdf.csv" in r.output
+    r = CliRunner().invoke(main, [*args, "--ambient", "lfp3.bdf.csv=25"])
     assert r.exit_code == 0 and "model error" in r.output, r.output
