@@ -1,10 +1,17 @@
-"""BioLogic EC-Lab / BT-Lab Modulo Bat settings export (``<name>.mps``).
+"""BioLogic BT-Lab / EC-Lab Modulo Bat settings export (``<name>.mps``).
 
-Conventions (learned from aurora-unicycler's Modulo Bat writer and the templates of TRI's BEEP):
+Layout (learned from the BT-Lab settings files shipped as templates with TRI's BEEP, recorded on BCS-805 and
+BCS-815 cyclers, and from aurora-unicycler's Modulo Bat writer):
 
-* Text in cp1252: a header (device, safety limits, comments), ``Technique : 1`` / ``Modulo Bat``, then one
-  row per parameter whose first 20 characters are the parameter name and every following 20-character column
-  one *sequence* (``Ns`` = 0, 1, ...).
+* Text in cp1252, CRLF: a header (``BT-LAB SETTING FILE``, the device, the safety limits, comments), then
+  ``Technique : 1`` / ``Modulo Bat`` and one row per parameter whose first 20 characters are the parameter name
+  and every following 20-character column one *sequence* (``Ns`` = 0, 1, ...).
+* The technique block has the 62 rows BT-Lab writes for Modulo Bat, in its order (``Ns`` ... ``Bandwidth``,
+  three limits ``lim1..3`` and three records ``rec1..3``); see :data:`ROWS`. The header names the BCS-815
+  (±15 A per channel), the BioLogic cycler for a 2.7 Ah cell run at 5C; BCS cyclers are driven by BT-Lab,
+  hence ``BT-LAB SETTING FILE``. EC-Lab writes the same structure (``EC-LAB SETTING FILE``) with rows that
+  vary between its versions (EC-Lab 11.5 adds ``current/potential``, ``charge/discharge_1``, ``N1``,
+  ``ctrl4..5``, ``ctrl_tM``).
 * ``Rest``; ``CC`` with ``ctrl1_val`` = |I| in mA and the sign in the ``charge/discharge`` row (``Charge`` =
   positive current); ``CV`` with ``ctrl1_val`` in V (vs ``Ref``) and the direction in ``charge/discharge``.
   Modulo Bat has no combined CC-CV sequence: a CCCV step is written as a CC sequence up to the voltage and a
@@ -13,14 +20,28 @@ Conventions (learned from aurora-unicycler's Modulo Bat writer and the templates
   ``|Q| > Ah`` (charge of the sequence), each with action ``Next sequence``.
 * A sampled profile becomes one sequence per zero-order-hold segment (``Rest`` or ``CC`` ending on time);
   runs that repeat become a ``Loop`` sequence (``ctrl_seq`` = first sequence of the body, ``ctrl_repeat`` =
-  count - 1, as in aurora-unicycler).
+  count - 1, as in aurora-unicycler and BEEP's templates).
 * Safety limits go to the header's ``Safety Limits`` block (``Ecell min``/``Ecell max``/``|I| max``); the
   temperature limit has no field here and is reported as a note.
+* The I range is one fixed range for every sequence (``10 mA``, ``100 mA`` or ``10 A``, the BCS-815 ranges in
+  BEEP's templates), the smallest that holds the safety current: Modulo Bat has no ``Auto`` range for CC
+  sequences (aurora-unicycler's note for EC-Lab 11.5), and the range may change between sequences only after
+  a rest, so a single range avoids both. That the 10 A range covers the BCS-815's ±15 A is assumed, not
+  checked; the export notes it when the safety current exceeds 10 A.
+
+What BEEP's reader (``beep.protocol.biologic.Settings``) needs, and why the earlier files failed in it: it
+takes the 62 lines after the ``Modulo Bat`` line as the technique (so the block must have exactly BT-Lab's 62
+rows; the earlier 65-row block, EC-Lab 11.5's rows with three limits, spilled its last three rows into the
+header), and it splits every
+other line that contains ``:`` at ``" : "``, so the ``Safety Limits :`` line that BT-Lab writes (and BEEP's own
+Maccor converter writes) stops it with ``ValueError``. The header therefore writes ``Safety Limits : `` with
+a trailing space, the one deviation from BT-Lab's own text, which reads as the same key with an empty
+value, as ``Electrode material : `` does in BT-Lab's files. BEEP's reader checks no software version line,
+and BT-Lab's own files (BEEP's templates) carry none, so none is written.
 
 Resolution and limits (assumptions, not checked against BioLogic's documentation): times are written to 1 ms
 and a sequence lasts at least 1 ms, currents to 1 uA (mA with 3 decimals), voltages to 1 uV; a technique
-holds at most 1000 sequences. The I range is left on ``Auto``; set a fixed range in EC-Lab where your
-instrument needs one for CC sequences.
+holds at most 1000 sequences.
 """
 
 from __future__ import annotations
@@ -65,11 +86,11 @@ RULES = FormatRules(
 WIDTH = 20
 MAX_LIMITS = 3
 
+#: The Modulo Bat rows BT-Lab writes, in its order (BEEP's reader takes exactly this many).
 ROWS = (
     "Ns",
     "ctrl_type",
     "Apply I/C",
-    "current/potential",
     "ctrl1_val",
     "ctrl1_val_unit",
     "ctrl1_val_vs",
@@ -81,14 +102,6 @@ ROWS = (
     "ctrl3_val_vs",
     "N",
     "charge/discharge",
-    "charge/discharge_1",
-    "Apply I/C_1",
-    "N1",
-    "ctrl4_val",
-    "ctrl4_val_unit",
-    "ctrl5_val",
-    "ctrl5_val_unit",
-    "ctrl_tM",
     "ctrl_seq",
     "ctrl_repeat",
     "ctrl_trigger",
@@ -100,9 +113,7 @@ ROWS = (
     "lim_nb",
     *(f"lim{j}_{f}" for j in (1, 2, 3) for f in ("type", "comp", "Q", "value", "value_unit", "action", "seq")),
     "rec_nb",
-    "rec1_type",
-    "rec1_value",
-    "rec1_value_unit",
+    *(f"rec{j}_{f}" for j in (1, 2, 3) for f in ("type", "value", "value_unit")),
     "E range min (V)",
     "E range max (V)",
     "I Range",
@@ -112,21 +123,23 @@ ROWS = (
     "auto rest",
     "Bandwidth",
 )
+#: Fixed I ranges [A] and their labels, smallest first (the BCS-815 ranges in BT-Lab's files).
+I_RANGES = ((0.01, "10 mA"), (0.1, "100 mA"), (10.0, "10 A"))
 
 
-def _blank(ns: int) -> dict[str, str]:
+def i_range(current_max: float) -> str:
+    """The smallest fixed I range holding ``current_max`` [A] (the top range above it)."""
+    return next((label for top, label in I_RANGES if current_max <= top * (1 + 1e-12)), I_RANGES[-1][1])
+
+
+def _blank(ns: int, current_range: str) -> dict[str, str]:
     d = dict.fromkeys(ROWS, "")
     d.update(
         {
             "Ns": str(ns),
             "Apply I/C": "I",
-            "current/potential": "current",
             "N": "1.00",
             "charge/discharge": "Charge",
-            "charge/discharge_1": "Charge",
-            "Apply I/C_1": "I",
-            "N1": "0.00",
-            "ctrl_tM": "0",
             "ctrl_seq": "0",
             "ctrl_repeat": "0",
             "ctrl_trigger": "Falling Edge",
@@ -137,12 +150,9 @@ def _blank(ns: int) -> dict[str, str]:
             "ctrl_corr": "0",
             "lim_nb": "0",
             "rec_nb": "1",
-            "rec1_type": "Time",
-            "rec1_value": "1.000",
-            "rec1_value_unit": "s",
             "E range min (V)": "0.000",
             "E range max (V)": "5.000",
-            "I Range": "Auto",
+            "I Range": current_range,
             "I Range min": "Unset",
             "I Range max": "Unset",
             "I Range init": "Unset",
@@ -150,18 +160,23 @@ def _blank(ns: int) -> dict[str, str]:
             "Bandwidth": "5",
         }
     )
+    # unused limits and records hold BT-Lab's defaults: a zero time
     for j in (1, 2, 3):
         d.update(
             {
                 f"lim{j}_type": "Time",
-                f"lim{j}_comp": ">",
-                f"lim{j}_Q": "",
+                f"lim{j}_comp": "<",
+                f"lim{j}_Q": "Q limit",
                 f"lim{j}_value": "0.000",
                 f"lim{j}_value_unit": "s",
                 f"lim{j}_action": "Next sequence",
                 f"lim{j}_seq": str(ns + 1),
+                f"rec{j}_type": "Time",
+                f"rec{j}_value": "0.000",
+                f"rec{j}_value_unit": "s",
             }
         )
+    d["rec1_value"] = "1.000"
     return d
 
 
@@ -182,8 +197,8 @@ def _limit(e: EndCondition) -> tuple[str, str, str, str]:
     return ("|Q|", ">", fmt_num(e.value, 6), "A.h")
 
 
-def _hold(ns: int, h: Hold) -> dict[str, str]:
-    seq = _blank(ns)
+def _hold(ns: int, h: Hold, current_range: str) -> dict[str, str]:
+    seq = _blank(ns, current_range)
     if h.current == 0:
         seq["ctrl_type"] = "Rest"
     else:
@@ -205,6 +220,8 @@ def write(protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: 
     protocol.check()
     check_times(protocol, rules)
     proto = split_cccv(protocol)
+    lim = protocol.limits
+    current_range = i_range(lim.current_max)
     seqs: list[dict[str, str]] = []
     for k, s in enumerate(proto.steps, start=1):
         if len(s.ends) > MAX_LIMITS:
@@ -212,17 +229,17 @@ def write(protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: 
         if isinstance(s, ProfileStep):
             for it in profile_plan(proto, k, s, rules):
                 if isinstance(it, Hold):
-                    seqs.append(_hold(len(seqs), it))
+                    seqs.append(_hold(len(seqs), it, current_range))
                     continue
                 first = len(seqs)
                 for h in it.body:
-                    seqs.append(_hold(len(seqs), h))
-                loop = _blank(len(seqs))
+                    seqs.append(_hold(len(seqs), h, current_range))
+                loop = _blank(len(seqs), current_range)
                 loop.update({"ctrl_type": "Loop", "ctrl_seq": str(first), "ctrl_repeat": str(it.count - 1)})
                 loop["rec_nb"] = "0"
                 seqs.append(loop)
             continue
-        seq = _blank(len(seqs))
+        seq = _blank(len(seqs), current_range)
         if isinstance(s, Rest):
             seq["ctrl_type"] = "Rest"
         elif isinstance(s, ConstantCurrent):
@@ -239,7 +256,6 @@ def write(protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: 
             seq.update(
                 {
                     "ctrl_type": "CV",
-                    "current/potential": "potential",
                     "ctrl1_val": fmt_num(s.voltage, 6),
                     "ctrl1_val_unit": "V",
                     "ctrl1_val_vs": "Ref",
@@ -249,20 +265,22 @@ def write(protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: 
         _set_limits(seq, [_limit(e) for e in s.ends])
         seqs.append(seq)
     check_step_count(protocol, len(seqs), rules, "sequences")
-    lim = protocol.limits
+    # the comment is one line of cp1252 text: line breaks become spaces, other characters '?'
+    comment = " ".join(protocol.name.split()).encode("cp1252", "replace").decode("cp1252")
     header = [
-        "EC-LAB SETTING FILE",
+        "BT-LAB SETTING FILE",
         "",
         "Number of linked techniques : 1",
         "",
         "Device : BCS-815",
         "Ecell ctrl range : min = 0.00 V, max = 5.00 V",
-        "Safety Limits :",
+        # BT-Lab writes no space after this colon; BEEP's reader needs ' : ' in every line with a colon
+        "Safety Limits : ",
         f"\tEcell min = {fmt_num(lim.voltage_min, 6)} V",
         f"\tEcell max = {fmt_num(lim.voltage_max, 6)} V",
         f"\t|I| max = {fmt_num(lim.current_max, 6)} A",
         "\tfor t > 100 ms",
-        f"Comments : {protocol.name}",
+        f"Comments : {comment}",
         "Cycle Definition : Charge/Discharge alternance",
         "Do not turn to OCV between techniques",
         "",
@@ -272,8 +290,13 @@ def write(protocol: Protocol, out_dir: Path, *, name: str | None = None, rules: 
     rows = [key.ljust(WIDTH) + "".join(seq[key].ljust(WIDTH) for seq in seqs) for key in ROWS]
     path = Path(out_dir) / f"{safe_name(name or protocol.name)}.mps"
     path.write_bytes(("\r\n".join([*header, *rows]) + "\r\n").encode("cp1252"))
-    notes = (f"BioLogic: the temperature limit {lim.temperature_max - 273.15:g} degC is not in the settings file",)
-    return ExportResult((path,), notes)
+    notes = [f"BioLogic: the temperature limit {lim.temperature_max - 273.15:g} degC is not in the settings file"]
+    if lim.current_max > I_RANGES[-1][0]:
+        notes.append(
+            f"BioLogic: the I range is {current_range} for a safety current of {lim.current_max:g} A; check that "
+            "your channel's range reaches it"
+        )
+    return ExportResult((path,), tuple(notes))
 
 
 # --- re-import ---------------------------------------------------------------------------------------------

@@ -242,3 +242,20 @@ def test_cycler_current_range_is_checked(lib: Library, tmp_path: Path) -> None:
         export(lib[1], Format.MACCOR, tmp_path, max_current_a=10.0)
     assert not list(tmp_path.iterdir())
     export(lib[1], Format.MACCOR, tmp_path, max_current_a=15.0)
+
+
+def test_biologic_sets_one_fixed_current_range_for_the_safety_current(tmp_path: Path) -> None:
+    from protocols import SafetyLimits
+    from protocols.export.biologic import read
+
+    steps = (ConstantCurrent(0.05, ("time >= 10",)), Rest(("time >= 10",)), ConstantCurrent(-0.002, ("time >= 5",)))
+    for current_max, label, notes in ((0.008, "10 mA", 1), (0.08, "100 mA", 1), (5.0, "10 A", 1), (13.5, "10 A", 2)):
+        proto = Protocol("range", steps[2:] if current_max < 0.05 else steps, SafetyLimits(current_max=current_max))
+        result = export(proto, Format.BIOLOGIC, tmp_path / label.replace(" ", "") / str(current_max))
+        row = next(
+            line for line in result.path.read_text(encoding="cp1252").splitlines() if line.startswith("I Range ")
+        )
+        ranges = {row[i : i + 20].strip() for i in range(20, len(row), 20)}
+        assert ranges == {label}, current_max
+        assert len(result.notes) == notes and ("I range is 10 A" in result.notes[-1]) == (notes == 2)
+        assert read(result.path).current_max == current_max
