@@ -198,37 +198,107 @@ def open_log(path: str | Path, columns: Sequence[str], meta: Mapping[str, Any], 
     return LogWriter(path, cols, meta, chunk_rows)
 
 
+#: HDF5's signature, at the start of the superblock (offset 0: battlab's logs have no user block)
+_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+#: A SWMR reader retries a metadata read whose checksum fails (the writer may be mid-flush), sleeping 1 ns, 2 ns,
+#: 4 ns, …; with HDF5's default of 100 attempts a truncated file never fails. 28 attempts bound the retries of one
+#: read at about 0.3 s, ample for a live writer's flush.
+SWMR_READ_ATTEMPTS = 28
+#: a file shorter than its superblock says is re-checked this often, this far apart / s (a live writer extends the
+#: file just after it writes the superblock) before it is called truncated
+_TRUNCATION_CHECKS, _TRUNCATION_WAIT_S = 5, 0.05
+
+
+def _stored_eof(path: Path) -> int | None:
+    """The end-of-file address a version 2/3 superblock records (bytes), or None if there is no such superblock
+    (not HDF5, or an older superblock version this writer never makes)."""
+    with path.open("rb") as fh:
+        head = fh.read(48)
+    if len(head) < 12 or head[:8] != _SIGNATURE or head[8] not in (2, 3):
+        return None
+    size = head[9]  # size of offsets / bytes
+    if size not in (2, 4, 8) or len(head) < 12 + 4 * size:
+        return None
+    base = int.from_bytes(head[12 : 12 + size], "little")
+    eof = int.from_bytes(head[12 + 2 * size : 12 + 3 * size], "little")
+    return base + eof
+
+
+def _check_not_truncated(path: Path) -> None:
+    """Raise InputError when ``path`` is shorter than the end of file its superblock records (a copy cut short, a
+    disk that filled up): HDF5 skips that check for SWMR readers and would retry reading the missing metadata."""
+    import time
+
+    for attempt in range(_TRUNCATION_CHECKS):
+        if attempt:
+            time.sleep(_TRUNCATION_WAIT_S)
+        eof = _stored_eof(path)
+        size = path.stat().st_size
+        if eof is None or size >= eof:
+            return
+    raise InputError(f"{path}: run log truncated: {size} bytes on disk, its HDF5 superblock records {eof}")
+
+
+def _open_swmr(path: Path) -> Any:
+    """``path`` opened read-only as a SWMR reader, with HDF5's metadata read attempts bounded where the library
+    allows setting them (``H5Pset_metadata_read_attempts``, reached through h5py's own HDF5)."""
+    import ctypes
+
+    import h5py
+
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
+    try:
+        fn = ctypes.CDLL(h5py.h5.__file__).H5Pset_metadata_read_attempts
+    except (OSError, AttributeError):
+        fn = None
+    if fn is not None:
+        fn.argtypes, fn.restype = [ctypes.c_int64, ctypes.c_uint], ctypes.c_int
+        fn(fapl.id, SWMR_READ_ATTEMPTS)
+    fid = h5py.h5f.open(str(path).encode(), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ, fapl=fapl)
+    return h5py.File(fid)
+
+
 def read_log(path: str | Path) -> LoggedData:
     """Read a run log (also one still being written, or left by a killed writer) as :class:`LoggedData`.
 
     ``meta`` holds the run metadata plus ``final`` (if closed cleanly), ``created`` and ``complete`` (bool).
+    A truncated or damaged file is an :class:`InputError` naming it, raised within about a second.
     """
-    import h5py
-
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such run log")
+    _check_not_truncated(path)
     try:
-        f = h5py.File(path, "r", libver="latest", swmr=True)
-    except OSError as exc:
-        raise InputError(f"{path}: not a readable HDF5 file ({exc})") from None
-    with f:
-        if f.attrs.get("format") != FORMAT:
-            raise InputError(f"{path}: not a battlab run log (attribute format = {f.attrs.get('format')!r})")
-        if "data" not in f:
-            raise InputError(f"{path}: run log has no /data dataset")
-        ds = f["data"]
-        ds.refresh()
-        block = ds[...]
-        columns = json.loads(ds.attrs["columns"])
-        meta = json.loads(f.attrs.get("meta", "{}"))
-        final = f.attrs.get("final")
-        meta["created"] = str(f.attrs.get("created", ""))
-        meta["complete"] = "rows" in f.attrs
-        if final is not None:
-            meta["final"] = json.loads(final)
+        f = _open_swmr(path)
+    except (OSError, RuntimeError, ValueError) as exc:
+        raise InputError(f"{path}: not a readable HDF5 file ({_one_line(exc)})") from None
+    try:
+        with f:
+            if f.attrs.get("format") != FORMAT:
+                raise InputError(f"{path}: not a battlab run log (attribute format = {f.attrs.get('format')!r})")
+            if "data" not in f:
+                raise InputError(f"{path}: run log has no /data dataset")
+            ds = f["data"]
+            ds.refresh()
+            block = ds[...]
+            columns = json.loads(ds.attrs["columns"])
+            meta = json.loads(f.attrs.get("meta", "{}"))
+            final = f.attrs.get("final")
+            meta["created"] = str(f.attrs.get("created", ""))
+            meta["complete"] = "rows" in f.attrs
+            if final is not None:
+                meta["final"] = json.loads(final)
+    except (OSError, RuntimeError, KeyError, ValueError) as exc:
+        raise InputError(f"{path}: run log damaged, cannot be read ({_one_line(exc)})") from None
+    if block.ndim != 2 or block.shape[1] != len(columns):
+        raise InputError(f"{path}: run log /data has shape {block.shape}, expected (rows, {len(columns)})")
     cols = {c: block[:, k] for k, c in enumerate(columns)}
     return LoggedData(path.stem, cols, meta, str(path))
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
 
 
 __all__ = ["FORMAT", "VERSION", "LogWriter", "open_log", "read_log", "run_meta", "unit_of"]

@@ -1,0 +1,82 @@
+"""What the runner's logs and catalog survive: a truncated log, a kill at the log's creation, stalls of the runner
+(gaps marked), a dead tester (output off within a second), instruments that cannot be reached before the start.
+
+The virtual labs run in this process on free loopback ports with the drivers' stand-in cell unless a case needs
+the tester in another process. Times asserted are the instrument's (virtual) or logged ones, never wall-clock
+durations, except generous bounds where a hang is the defect.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+from lab_helpers import plan_from
+
+from battlab.io.logs import read_log
+from battlab.lab.session import RunResult, RunSettings, start_run
+from drivers.virtual.lab import VirtualLab
+
+SHORT = """
+name = "short"
+[run]
+stable_hold_s = 5
+[[steps]]
+kind = "rest"
+until = "time >= 20"
+[[steps]]
+kind = "cc"
+current = -2.7
+until = "time >= 100"
+"""
+
+
+def run_on(lab: VirtualLab, plan_text: str, tmp_path: Path, name: str = "run.h5", **kw: object) -> RunResult:
+    plan = plan_from(plan_text, tmp_path)
+    settings = RunSettings(cycler_url=lab.cycler_url, chamber_url=lab.chamber_url)
+    return start_run(plan, settings, tmp_path / name, display=False, **kw)
+
+
+def load_in_subprocess(paths: list[Path], timeout_s: float = 60.0) -> list[dict[str, object]]:
+    """``battlab.io.data.load_data`` of each path in another process (a hang inside HDF5 holds the GIL, so only a
+    process can be timed out): per path ``{"rows": n}`` or ``{"error": type name, "message": text}``."""
+    code = textwrap.dedent("""
+        import json, sys
+        from battlab.io.data import load_data
+        for p in sys.argv[1:]:
+            try:
+                out = {"rows": len(load_data(p))}
+            except Exception as exc:
+                out = {"error": type(exc).__name__, "message": str(exc)}
+            print(json.dumps(out), flush=True)
+    """)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", code, *map(str, paths)], capture_output=True, text=True, timeout=timeout_s
+        )
+    except subprocess.TimeoutExpired as exc:
+        pytest.fail(f"load_data hung: no answer within {timeout_s:g} s (answers so far: {exc.stdout!r})")
+    assert done.returncode == 0, done.stderr
+    return [json.loads(line) for line in done.stdout.splitlines()]
+
+
+def test_a_truncated_run_log_is_one_input_error_naming_the_file(make_lab, home: Path, tmp_path: Path) -> None:
+    result = run_on(make_lab(soc0=0.5), SHORT, tmp_path)
+    assert result.status == "completed", result.reason
+    data = result.log_path.read_bytes()
+    n = len(read_log(result.log_path))
+    cuts = []
+    for name, size in (("superblock", 48), ("half", len(data) // 2), ("one-byte-short", len(data) - 1)):
+        cut = tmp_path / f"cut-{name}.h5"
+        cut.write_bytes(data[:size])
+        cuts.append(cut)
+    got = load_in_subprocess([result.log_path, *cuts])
+    assert got[0] == {"rows": n}
+    for cut, answer in zip(cuts, got[1:], strict=True):
+        assert answer.get("error") == "InputError", (cut.name, answer)
+        message = str(answer["message"])
+        assert message.startswith(str(cut)) and "truncated" in message and "\n" not in message
