@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from battlab.io.logged import TIME
 from battlab.lab.catalog import Catalog
 from battlab.lab.plan import PlanEntry
 
@@ -72,20 +73,29 @@ class Subscriber:
     def stop(self, doc: RunStop) -> None: ...
 
 
+#: the log is flushed at least every this many seconds of test time (run clock), so a killed runner loses at most
+#: about this much test time at any clock speed (plus a sample period)
+FLUSH_TEST_S = 5.0
+
+
 class LogSink(Subscriber):
-    """Writes events to the HDF5 run log: buffered, flushed every ``flush_s`` real seconds, at every step end
-    and at the stop (a killed runner loses at most the last ``flush_s`` seconds).
+    """Writes events to the HDF5 run log: buffered, and flushed when ``flush_s`` real seconds or ``flush_test_s``
+    seconds of test time have passed since the last flush, whichever comes first, at every step end and at the stop.
+    A killed runner loses at most the rows of the last ``min(flush_s × speed, flush_test_s)`` seconds of test time.
 
     ``open_writer(columns, meta)`` creates the log when the start document arrives (the resume path copies the
     interrupted log first: :func:`battlab.lab.logfile.reopen`).
     """
 
-    def __init__(self, open_writer: Any, flush_s: float = 1.0) -> None:
+    def __init__(self, open_writer: Any, flush_s: float = 1.0, flush_test_s: float = FLUSH_TEST_S) -> None:
         self._open_writer = open_writer
         self.flush_s = flush_s
+        self.flush_test_s = flush_test_s
         self.writer: Any = None
         self._buffer: list[tuple[float, ...]] = []
         self._last_flush = time.perf_counter()
+        self._time_col = 0
+        self._t_flushed: float | None = None  # test time / s of the last row flushed (at first: of the first row)
         self.flushes = 0
         self._written = 0
 
@@ -97,11 +107,15 @@ class LogSink(Subscriber):
     def start(self, doc: RunStart) -> None:
         self.writer = self._open_writer(doc.columns, doc.meta)
         self._written = self.writer.n_rows
+        self._time_col = doc.columns.index(TIME) if TIME in doc.columns else 0
         self._last_flush = time.perf_counter()
 
     def event(self, row: tuple[float, ...]) -> None:
         self._buffer.append(row)
-        if time.perf_counter() - self._last_flush >= self.flush_s:
+        t = row[self._time_col]
+        if self._t_flushed is None:
+            self._t_flushed = t
+        if t - self._t_flushed >= self.flush_test_s or time.perf_counter() - self._last_flush >= self.flush_s:
             self.flush()
 
     def flush(self) -> None:
@@ -110,6 +124,7 @@ class LogSink(Subscriber):
         if self._buffer:
             self.writer.append(np.asarray(self._buffer, dtype=float))
             self._written += len(self._buffer)
+            self._t_flushed = self._buffer[-1][self._time_col]
             self._buffer.clear()
         self.writer.flush()
         self.flushes += 1

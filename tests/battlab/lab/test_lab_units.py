@@ -16,6 +16,7 @@ from battlab.cell import Cell
 from battlab.io.logs import open_log, read_log
 from battlab.lab import logfile
 from battlab.lab.catalog import Catalog, RunLock
+from battlab.lab.documents import LogSink, RunStart
 from battlab.lab.limits import VIRTUAL_LIMITS, CellWindow, Envelope, InstrumentLimits
 from battlab.lab.plan import Plan
 from battlab.lab.preflight import check_plan
@@ -310,6 +311,20 @@ def test_recover_prefers_the_most_complete_copy(tmp_path: Path) -> None:
         w.close()
     data = logfile.recover(path)
     assert data is not None and len(data) == 5
+
+
+def test_log_sink_flushes_every_few_seconds_of_test_time_whatever_the_speed(tmp_path: Path) -> None:
+    """On a fast clock a real second is minutes of test time: the test-time bound flushes first."""
+    sink = LogSink(lambda columns, meta: logfile.create(tmp_path / "run.h5", columns, meta), flush_s=3600.0)
+    sink.start(RunStart(1, logfile.COLUMNS, {}))
+    flushed_at = []
+    for k in range(31):  # one sample per second of test time, all within a fraction of a real second
+        sink.event((float(k),) + (0.0,) * (len(logfile.COLUMNS) - 1))
+        on_disk = len(read_log(tmp_path / "run.h5"))
+        if on_disk and (not flushed_at or on_disk > flushed_at[-1][1]):
+            flushed_at.append((k, on_disk))
+    assert flushed_at == [(5, 6), (10, 11), (15, 16), (20, 21), (25, 26), (30, 31)]
+    assert sink.flushes == 6
 
 
 # -- progress display -----------------------------------------------------------------------------------------
