@@ -339,12 +339,17 @@ def resume_run(
     settings = replace(RunSettings.from_dict(rec.settings), **dict(overrides or {}))
     plan = Plan.from_dict(rec.plan, source=f"run {run_id} (catalog)")
     log_path = Path(rec.log_path)
+    _prepare(plan, settings)  # refuse before anything changes
+    unreadable = logfile.set_aside_unreadable(log_path)
     old = logfile.recover(log_path)
     n_old = len(old) if old is not None else 0
     if old is not None and list(old.columns) != list(logfile.COLUMNS):
         raise InputError(f"{log_path}: its columns are not this runner's {list(logfile.COLUMNS)}; cannot resume")
+    start_entry = rec.next_entry if n_old else 0  # no rows kept: nothing of the run is on disk, start again
+    for was, now, why in unreadable:
+        then = "" if n_old else "; no data recovered: the run restarts from its first step"
+        log.warning("resume: %s cannot be read (%s); kept aside as %s%s", was, why.removeprefix(f"{was}: "), now, then)
     last_tt = float(old.t[-1]) if old is not None and n_old else None
-    _prepare(plan, settings)  # refuse before anything changes
     catalog.mark_interrupted_steps(run_id, n_old)
     steps = catalog.steps(run_id)
     interrupted = []
@@ -386,7 +391,7 @@ def resume_run(
     catalog.update(run_id, status="running", reason=None, resumes=rec.resumes + 1, settings=settings.to_dict())
     identities = base.get("identities") if not settings.virtual else None
     overrides_cfg = {
-        "start_entry": rec.next_entry,
+        "start_entry": start_entry,
         "step_count0": max([rec.step_count, *[s["step_count"] for s in steps]], default=0),
         "row0": n_old,
         "net_capacity0_Ah": float(old.columns[NET_CAPACITY][-1]) if old is not None and n_old else 0.0,

@@ -9,18 +9,24 @@ durations, except generous bounds where a hang is the defect.
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import sys
 import textwrap
 from pathlib import Path
 
 import pytest
+from click.testing import CliRunner
 from lab_helpers import plan_from
 
+from battlab.cli import main
 from battlab.io.logs import read_log
+from battlab.lab.catalog import Catalog
 from battlab.lab.session import RunResult, RunSettings, start_run
 from drivers.virtual.lab import VirtualLab
 
+BATTLAB = [sys.executable, "-c", "from battlab.cli import main; main()"]
 SHORT = """
 name = "short"
 [run]
@@ -80,3 +86,52 @@ def test_a_truncated_run_log_is_one_input_error_naming_the_file(make_lab, home: 
         assert answer.get("error") == "InputError", (cut.name, answer)
         message = str(answer["message"])
         assert message.startswith(str(cut)) and "truncated" in message and "\n" not in message
+
+
+#: ``battlab …`` in a child process that dies by SIGKILL the instant it creates the run log ``run.h5`` (the
+#: file as HDF5 leaves it then: its 48-byte superblock, nothing else)
+DIE_AT_LOG_CREATION = """
+import os, signal, h5py
+_File = h5py.File
+class File(_File):
+    def __init__(self, name, mode="r", *args, **kwargs):
+        super().__init__(name, mode, *args, **kwargs)
+        if mode == "w" and os.path.basename(str(name)) == "run.h5":
+            os.kill(os.getpid(), signal.SIGKILL)
+h5py.File = File
+from battlab.cli import main
+main()
+"""
+
+
+def test_a_kill_at_log_creation_leaves_a_log_resume_sets_aside(make_lab, home: Path, tmp_path: Path) -> None:
+    lab = make_lab(soc0=0.5)
+    plan, out = tmp_path / "plan.toml", tmp_path / "run.h5"
+    plan.write_text(SHORT)
+    env = {**os.environ, "BATTLAB_HOME": str(home)}
+    args = ["run", str(plan), "--cycler", lab.cycler_url, "--chamber", lab.chamber_url, "-o", str(out), "--quiet"]
+    killed = subprocess.run(
+        [sys.executable, "-c", DIE_AT_LOG_CREATION, *args], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    assert out.stat().st_size == 48
+    listed = CliRunner().invoke(main, ["runs", "list", "--json"])
+    assert listed.exit_code == 0, listed.output
+    (row,) = [json.loads(line) for line in listed.output.splitlines()]
+    assert row["status"] == "interrupted" and row["next_entry"] == 0
+
+    resumed = subprocess.run(
+        [*BATTLAB, "runs", "resume", str(row["id"]), "--quiet"], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert resumed.returncode == 0, resumed.stderr
+    assert "Traceback" not in resumed.stderr
+    kept = tmp_path / "run.unreadable-1.h5"
+    warnings = [line for line in resumed.stderr.splitlines() if str(out) in line]
+    assert len(warnings) == 1 and str(kept) in warnings[0] and "first step" in warnings[0], resumed.stderr
+    assert kept.stat().st_size == 48  # kept aside, unchanged
+    data = read_log(out)
+    assert data.meta["complete"] and data.meta["final"]["status"] == "completed"
+    assert [(s["step_index"], s["status"]) for s in data.meta["final"]["steps"]] == [(1, "completed"), (2, "completed")]
+    assert data.columns["Step Index / 1"][0] == 1 and data.columns["Step Time / s"][0] < 1.0
+    assert not list(tmp_path.glob("run.interrupted-*.h5"))
+    assert Catalog().get(row["id"]).status == "completed"

@@ -313,6 +313,24 @@ def test_recover_prefers_the_most_complete_copy(tmp_path: Path) -> None:
     assert data is not None and len(data) == 5
 
 
+def test_unreadable_copies_of_a_log_are_set_aside_not_taken_for_backups(tmp_path: Path) -> None:
+    path = tmp_path / "run.h5"
+    w = open_log(path, logfile.COLUMNS, {})
+    w.append(np.ones((4, len(logfile.COLUMNS))))
+    w.close()
+    stub = path.read_bytes()[:48]  # HDF5's superblock alone: a runner killed as it created the log
+    (tmp_path / "run.interrupted-1.h5").write_bytes(stub)
+    (tmp_path / "run.unreadable-1.h5").write_bytes(b"older")
+    moved = logfile.set_aside_unreadable(path)
+    assert [(a.name, b.name) for a, b, _ in moved] == [("run.interrupted-1.h5", "run.unreadable-2.h5")]
+    assert "truncated: 48 bytes" in moved[0][2]
+    assert (tmp_path / "run.unreadable-2.h5").read_bytes() == stub and logfile.backups(path) == []
+    assert logfile.backups(path, "unreadable") == [tmp_path / "run.unreadable-1.h5", tmp_path / "run.unreadable-2.h5"]
+    data = logfile.recover(path)
+    assert data is not None and len(data) == 4
+    assert logfile.set_aside_unreadable(path) == []
+
+
 def test_log_sink_flushes_every_few_seconds_of_test_time_whatever_the_speed(tmp_path: Path) -> None:
     """On a fast clock a real second is minutes of test time: the test-time bound flushes first."""
     sink = LogSink(lambda columns, meta: logfile.create(tmp_path / "run.h5", columns, meta), flush_s=3600.0)
