@@ -6,15 +6,19 @@ Layout (format ``battlab-run-log``, version 1)::
                         meta (JSON: cell, protocol/plan, instruments and identities, software, hashes, …),
                         created (ISO 8601 UTC); after a clean close also final (JSON) and rows
     /data        float64 (n_rows, n_columns), chunked, unlimited rows; attrs columns, units (the same lists)
+    /gaps        float64 (n_gaps, 3): the row after a gap in sampling, the test times / s of the samples before
+                 and after it (attrs columns); read back as ``meta["gaps"]`` (a list of those triples)
 
 One 2-D dataset (not one per column) makes every append atomic for a reader: it never sees columns of different
-lengths. The writer switches to SWMR mode after creating the file, so readers (``read_log``) may open it at any
-time; rows appended before the last :meth:`LogWriter.flush` survive a killed writer.
+lengths. The writer switches to SWMR mode after creating the file (``defer_swmr``: at its first flush, so that
+:meth:`LogWriter.update_meta` can still complete the metadata), so readers (``read_log``) may open it from then
+on; rows appended before the last :meth:`LogWriter.flush` survive a killed writer.
 
 The lab runner writes through::
 
     w = open_log("run.h5", ["Test Time / s", "Voltage / V", "Current / A", ...], run_meta(...))
     w.append(rows)          # (n, n_columns) array, a sequence of rows, or {column: values}
+    w.mark_gaps(marks)      # (n, 3): row after the gap, test time before and after / s
     w.flush()               # make appended rows durable and visible to readers
     w.close(final_meta)     # optional final metadata (e.g. {"ended_by": None, "status": "completed"})
 """
@@ -34,6 +38,8 @@ from protocols.errors import InputError
 
 FORMAT = "battlab-run-log"
 VERSION = 1
+#: the columns of ``/gaps``
+GAP_COLUMNS = ("Row / 1", "Test Time Before / s", "Test Time After / s")
 
 
 def unit_of(column: str) -> str:
@@ -90,7 +96,9 @@ def run_meta(
 class LogWriter:
     """Appends rows to a run log (SWMR). Use :func:`open_log` to create one; also a context manager."""
 
-    def __init__(self, path: Path, columns: Sequence[str], meta: Mapping[str, Any], chunk_rows: int) -> None:
+    def __init__(
+        self, path: Path, columns: Sequence[str], meta: Mapping[str, Any], chunk_rows: int, defer_swmr: bool = False
+    ) -> None:
         import h5py
 
         self.path = path
@@ -103,7 +111,8 @@ class LogWriter:
         f.attrs["version"] = VERSION
         f.attrs["columns"] = _json(list(self.columns))
         f.attrs["units"] = _json(units)
-        f.attrs["meta"] = _json(dict(meta))
+        self._meta = dict(meta)
+        f.attrs["meta"] = _json(self._meta)
         f.attrs["created"] = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
         ds = f.create_dataset(
             "data",
@@ -115,8 +124,27 @@ class LogWriter:
         ds.attrs["columns"] = _json(list(self.columns))
         ds.attrs["units"] = _json(units)
         self._ds = ds
-        f.swmr_mode = True
+        gaps = f.create_dataset("gaps", shape=(0, 3), maxshape=(None, 3), dtype="f8", chunks=(256, 3))
+        gaps.attrs["columns"] = _json(list(GAP_COLUMNS))
+        self._gaps = gaps
         self._closed = False
+        self._swmr = False
+        if not defer_swmr:
+            self._start_swmr()
+
+    def _start_swmr(self) -> None:
+        if not self._swmr:
+            self._file.swmr_mode = True
+            self._swmr = True
+
+    def update_meta(self, values: Mapping[str, Any]) -> None:
+        """Add to or change the run metadata; only before the first flush of a log opened with ``defer_swmr``
+        (attributes cannot be written in SWMR mode)."""
+        if self._swmr or self._closed:
+            raise RuntimeError(f"{self.path}: metadata can only be changed before the log's first flush")
+        meta = {**self._meta, **values}
+        self._file.attrs["meta"] = _json(meta)
+        self._meta = meta
 
     @property
     def n_rows(self) -> int:
@@ -148,10 +176,23 @@ class LogWriter:
         self._ds.resize((n + block.shape[0], len(self.columns)))
         self._ds[n:] = block
 
+    def mark_gaps(self, marks: Any) -> None:
+        """Record gaps in sampling: rows of (row after the gap, test time before / s, test time after / s)."""
+        if self._closed:
+            raise InputError(f"{self.path}: log is closed")
+        block = np.asarray(marks, dtype=float).reshape(-1, 3)
+        if block.shape[0] == 0:
+            return
+        n = int(self._gaps.shape[0])
+        self._gaps.resize((n + block.shape[0], 3))
+        self._gaps[n:] = block
+
     def flush(self) -> None:
         """Make the appended rows durable and visible to SWMR readers."""
         if not self._closed:
+            self._start_swmr()
             self._ds.flush()
+            self._gaps.flush()
             self._file.flush()
 
     def close(self, final_meta: Mapping[str, Any] | None = None) -> None:
@@ -176,10 +217,18 @@ class LogWriter:
         self.close({"status": "error"} if exc[0] is not None else None)
 
 
-def open_log(path: str | Path, columns: Sequence[str], meta: Mapping[str, Any], *, chunk_rows: int = 1024) -> LogWriter:
+def open_log(
+    path: str | Path,
+    columns: Sequence[str],
+    meta: Mapping[str, Any],
+    *,
+    chunk_rows: int = 1024,
+    defer_swmr: bool = False,
+) -> LogWriter:
     """Create a run log at ``path`` with BDF ``columns`` (must include time, voltage, current) and ``meta``.
 
-    An existing file is an error (logged data is never overwritten).
+    An existing file is an error (logged data is never overwritten). ``defer_swmr``: readers may open the log only
+    from its first flush on, and :meth:`LogWriter.update_meta` works until then.
     """
     path = Path(path)
     cols = list(columns)
@@ -195,7 +244,7 @@ def open_log(path: str | Path, columns: Sequence[str], meta: Mapping[str, Any], 
         _json(dict(meta))
     except TypeError as exc:
         raise InputError(f"{path}: metadata: {exc}") from None
-    return LogWriter(path, cols, meta, chunk_rows)
+    return LogWriter(path, cols, meta, chunk_rows, defer_swmr)
 
 
 #: HDF5's signature, at the start of the superblock (offset 0: battlab's logs have no user block)
@@ -287,6 +336,10 @@ def read_log(path: str | Path) -> LoggedData:
             final = f.attrs.get("final")
             meta["created"] = str(f.attrs.get("created", ""))
             meta["complete"] = "rows" in f.attrs
+            meta["gaps"] = []
+            if "gaps" in f:  # logs of earlier runners have none
+                f["gaps"].refresh()
+                meta["gaps"] = f["gaps"][...].tolist()
             if final is not None:
                 meta["final"] = json.loads(final)
     except (OSError, RuntimeError, KeyError, ValueError) as exc:
@@ -301,4 +354,4 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split())
 
 
-__all__ = ["FORMAT", "VERSION", "LogWriter", "open_log", "read_log", "run_meta", "unit_of"]
+__all__ = ["FORMAT", "GAP_COLUMNS", "VERSION", "LogWriter", "open_log", "read_log", "run_meta", "unit_of"]

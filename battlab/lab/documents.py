@@ -1,8 +1,10 @@
 """Documents the run engine emits, and the subscribers that consume them (bluesky's start → events → stop).
 
-``start`` (:class:`RunStart`: columns and metadata) → per step ``step_start`` / ``event`` rows / ``step_stop`` →
-``stop`` (:class:`RunStop`: status, reason, summary). Subscribers are called in order; the log writer comes
-first, so a step is recorded complete in the catalog only after its rows are flushed to disk.
+``start`` (:class:`RunStart`: columns and metadata) → ``origin`` (:class:`RunOrigin`: a new run's time origin, the
+first step's start, sent just before its first event) → per step ``step_start`` / ``event`` rows (each after a gap
+in sampling preceded by a ``gap`` document, :class:`Gap`) / ``step_stop`` → ``stop`` (:class:`RunStop`: status,
+reason, summary). Subscribers are called in order; the log writer comes first, so a step is recorded complete in
+the catalog only after its rows are flushed to disk.
 
 Events are plain tuples in the order of ``RunStart.columns`` (no object per sample: the runner's overhead per
 sample stays in microseconds).
@@ -30,6 +32,23 @@ class RunStart:
     run_id: int | None
     columns: tuple[str, ...]
     meta: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class RunOrigin:
+    """A new run's time origin: the instrument time / s of its first step's start (test time 0)."""
+
+    t0_s: float
+
+
+@dataclass(frozen=True)
+class Gap:
+    """Sampling stopped for longer than 1.5 sample periods: ``row`` is the row after the gap, ``t_from_s`` and
+    ``t_to_s`` the test times / s of the samples either side."""
+
+    row: int
+    t_from_s: float
+    t_to_s: float
 
 
 @dataclass(frozen=True)
@@ -64,6 +83,10 @@ class Subscriber:
 
     def start(self, doc: RunStart) -> None: ...
 
+    def origin(self, doc: RunOrigin) -> None: ...
+
+    def gap(self, doc: Gap) -> None: ...
+
     def step_start(self, doc: StepStart) -> None: ...
 
     def event(self, row: tuple[float, ...]) -> None: ...
@@ -79,12 +102,14 @@ FLUSH_TEST_S = 5.0
 
 
 class LogSink(Subscriber):
-    """Writes events to the HDF5 run log: buffered, and flushed when ``flush_s`` real seconds or ``flush_test_s``
-    seconds of test time have passed since the last flush, whichever comes first, at every step end and at the stop.
-    A killed runner loses at most the rows of the last ``min(flush_s × speed, flush_test_s)`` seconds of test time.
+    """Writes events and gap marks to the HDF5 run log: buffered, and flushed when ``flush_s`` real seconds or
+    ``flush_test_s`` seconds of test time have passed since the last flush, whichever comes first, at every step end
+    and at the stop. A killed runner loses at most the rows of the last ``min(flush_s × speed, flush_test_s)``
+    seconds of test time.
 
     ``open_writer(columns, meta)`` creates the log when the start document arrives (the resume path copies the
-    interrupted log first: :func:`battlab.lab.logfile.reopen`).
+    interrupted log first: :func:`battlab.lab.logfile.reopen`); the origin document completes its metadata
+    (``t0_s``) before the first flush.
     """
 
     def __init__(self, open_writer: Any, flush_s: float = 1.0, flush_test_s: float = FLUSH_TEST_S) -> None:
@@ -93,6 +118,7 @@ class LogSink(Subscriber):
         self.flush_test_s = flush_test_s
         self.writer: Any = None
         self._buffer: list[tuple[float, ...]] = []
+        self._gaps: list[tuple[float, float, float]] = []
         self._last_flush = time.perf_counter()
         self._time_col = 0
         self._t_flushed: float | None = None  # test time / s of the last row flushed (at first: of the first row)
@@ -110,6 +136,13 @@ class LogSink(Subscriber):
         self._time_col = doc.columns.index(TIME) if TIME in doc.columns else 0
         self._last_flush = time.perf_counter()
 
+    def origin(self, doc: RunOrigin) -> None:
+        if self.writer is not None:
+            self.writer.update_meta({"t0_s": doc.t0_s})
+
+    def gap(self, doc: Gap) -> None:
+        self._gaps.append((float(doc.row), doc.t_from_s, doc.t_to_s))
+
     def event(self, row: tuple[float, ...]) -> None:
         self._buffer.append(row)
         t = row[self._time_col]
@@ -126,6 +159,9 @@ class LogSink(Subscriber):
             self._written += len(self._buffer)
             self._t_flushed = self._buffer[-1][self._time_col]
             self._buffer.clear()
+        if self._gaps:
+            self.writer.mark_gaps(self._gaps)
+            self._gaps.clear()
         self.writer.flush()
         self.flushes += 1
         self._last_flush = time.perf_counter()
@@ -150,6 +186,9 @@ class CatalogSink(Subscriber):
 
     def start(self, doc: RunStart) -> None:
         self.catalog.update(self.run_id, t0=doc.meta.get("t0_s"))
+
+    def origin(self, doc: RunOrigin) -> None:
+        self.catalog.update(self.run_id, t0=doc.t0_s)
 
     def step_start(self, doc: StepStart) -> None:
         e = doc.entry
@@ -217,7 +256,10 @@ def emit(subscribers: Sequence[Subscriber], name: str, doc: Any) -> None:
 
 __all__ = [
     "CatalogSink",
+    "FLUSH_TEST_S",
+    "Gap",
     "LogSink",
+    "RunOrigin",
     "RunStart",
     "RunStop",
     "StepStart",

@@ -30,7 +30,17 @@ from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 from battlab.lab.calls import InstrumentCalls
-from battlab.lab.documents import RunStart, RunStop, StepRecords, StepStart, StepStop, Subscriber, emit
+from battlab.lab.documents import (
+    Gap,
+    RunOrigin,
+    RunStart,
+    RunStop,
+    StepRecords,
+    StepStart,
+    StepStop,
+    Subscriber,
+    emit,
+)
 from battlab.lab.limits import Envelope
 from battlab.lab.logfile import COLUMNS
 from battlab.lab.plan import Plan, PlanEntry
@@ -49,6 +59,8 @@ T = TypeVar("T")
 CURRENT_RESOLUTION_A = 1e-5
 #: measured vs programmed current: beyond max(abs, rel × |I|) the output is suspected off
 MISMATCH_A, MISMATCH_REL = 0.05, 0.05
+#: consecutive samples further apart than this many sample periods are a gap in the data, marked in the log
+GAP_PERIODS = 1.5
 
 
 @dataclass
@@ -107,6 +119,9 @@ class RunEngine:
         self._last: Sample | None = None
         self._T_amb_C = math.nan
         self._t0 = 0.0
+        #: a new run's origin is its first step's start, fixed at that step's first sample
+        self._origin_pending = config.t0_s is None
+        self._prev_test_time = config.last_test_time_s
         self._step_count = config.step_count0
         self._rows = config.row0
         self._q_Ah = config.net_capacity0_Ah
@@ -271,7 +286,7 @@ class RunEngine:
             except (InputError, ValueError) as exc:
                 self.stats.notes.append(f"SOC from the rest voltage: {exc}")
         meta.update(
-            t0_s=self._t0,
+            t0_s=None if self._origin_pending else self._t0,
             identities=self.identities,
             envelope=self.env.to_dict(),
             rest_voltage_V=self._rest_voltage,
@@ -322,6 +337,10 @@ class RunEngine:
                 s = self._measure(t_sched)
                 if first and t_applied is None:
                     ex.rebase(s.t)
+                if self._origin_pending:  # test time 0 is the first step's start: the log starts with the step
+                    self._t0 = ex.t0
+                    self._origin_pending = False
+                    self._emit("origin", RunOrigin(self._t0))
                 self._record(s, entry, count, ex)
                 if first:
                     first = False
@@ -396,8 +415,17 @@ class RunEngine:
         """Emit the sample (logged first), then check it against the envelope and the programmed current."""
         t = s.t
         T_C = s.T_K - 273.15 if s.T_K is not None else math.nan
+        test_time = t - self._t0
+        prev = self._prev_test_time
+        if prev is not None and test_time - prev > GAP_PERIODS * self.options.sample_period_s:
+            st = self.stats
+            st.gaps += 1
+            st.sum_gap_s += test_time - prev
+            st.max_gap_s = max(st.max_gap_s, test_time - prev)
+            self._emit("gap", Gap(self._rows, prev, test_time))
+        self._prev_test_time = test_time
         row = (
-            t - self._t0,
+            test_time,
             time.time(),
             ex.step_time(t),
             s.v,

@@ -51,8 +51,9 @@ COLUMNS: tuple[str, ...] = (
 
 
 def create(path: str | Path, columns: Sequence[str], meta: Mapping[str, Any]) -> LogWriter:
-    """A new run log (an existing file is an error: logs are never overwritten)."""
-    return open_log(path, list(columns), dict(meta), chunk_rows=4096)
+    """A new run log (an existing file is an error: logs are never overwritten); readable from its first flush, its
+    metadata completed until then (the run's origin is known only at the first step's start)."""
+    return open_log(path, list(columns), dict(meta), chunk_rows=4096, defer_swmr=True)
 
 
 def backups(path: str | Path, kind: str = "interrupted") -> list[Path]:
@@ -126,6 +127,7 @@ def reopen(path: str | Path, meta: Mapping[str, Any]) -> tuple[LogWriter, Logged
     writer = create(path, columns, meta)
     if old is not None and len(old):
         writer.append(np.column_stack([old.columns[c] for c in columns]))
+        writer.mark_gaps(old.meta.get("gaps", []))
         writer.flush()
     return writer, old
 

@@ -60,6 +60,10 @@ class RunStats:
     late_samples: int = 0
     max_late_s: float = 0.0
     sum_late_s: float = 0.0
+    #: gaps in sampling longer than 1.5 sample periods (marked in the log), their longest and total / s
+    gaps: int = 0
+    max_gap_s: float = 0.0
+    sum_gap_s: float = 0.0
     loop_wall_s: float = 0.0
     io_wall_s: float = 0.0
     sleep_wall_s: float = 0.0
@@ -85,6 +89,9 @@ class RunStats:
             "late_samples": self.late_samples,
             "mean_late_s": self.sum_late_s / n,
             "max_late_s": self.max_late_s,
+            "gaps": self.gaps,
+            "max_gap_s": self.max_gap_s,
+            "sum_gap_s": self.sum_gap_s,
             "overhead_per_sample_s": self.overhead_per_sample_s,
             "io_per_sample_s": self.io_wall_s / n,
             "mean_set_to_sample_s": self.sum_set_to_sample_s / max(1, self.set_to_sample_n),

@@ -14,15 +14,19 @@ import signal
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 from lab_helpers import plan_from
 
 from battlab.cli import main
+from battlab.io.logged import LoggedData
 from battlab.io.logs import read_log
 from battlab.lab.catalog import Catalog
+from battlab.lab.documents import Subscriber
 from battlab.lab.session import RunResult, RunSettings, start_run
 from drivers.virtual.lab import VirtualLab
 
@@ -135,3 +139,46 @@ def test_a_kill_at_log_creation_leaves_a_log_resume_sets_aside(make_lab, home: P
     assert data.columns["Step Index / 1"][0] == 1 and data.columns["Step Time / s"][0] < 1.0
     assert not list(tmp_path.glob("run.interrupted-*.h5"))
     assert Catalog().get(row["id"]).status == "completed"
+
+
+class Stall(Subscriber):
+    """Stalls the runner (a blocking sleep in its one thread) for ``stalls[row]`` real seconds after that row."""
+
+    def __init__(self, stalls: dict[int, float]) -> None:
+        self.stalls, self.n = stalls, 0
+
+    def event(self, row: tuple[float, ...]) -> None:
+        self.n += 1
+        if self.n in self.stalls:
+            time.sleep(self.stalls[self.n])
+
+
+def check_gaps_marked(data: LoggedData, period_s: float) -> list[list[float]]:
+    """Every interval between consecutive rows longer than 1.5 sample periods is marked in the log, and only those;
+    returns the marks ``[row after the gap, test time before, test time after]``."""
+    t = data.t
+    marks = data.meta["gaps"]
+    rows = [int(m[0]) for m in marks]
+    assert rows == [int(k) + 1 for k in np.flatnonzero(np.diff(t) > 1.5 * period_s)]
+    for row, t_from, t_to in marks:
+        assert (t_from, t_to) == (t[int(row) - 1], t[int(row)])
+    return marks
+
+
+def test_stalls_of_the_runner_leave_marked_gaps_and_the_first_row_starts_the_step(
+    make_lab, home: Path, tmp_path: Path
+) -> None:
+    lab = make_lab(soc0=0.5, speed=200.0)
+    stalls = {10: 0.025, 30: 0.04, 50: 0.06, 70: 0.03}  # real seconds: 5-12 s of test time each at 200x
+    result = run_on(lab, SHORT, tmp_path, extra_subscribers=(Stall(stalls),))
+    assert result.status == "completed", result.reason
+    data = read_log(result.log_path)
+    marks = check_gaps_marked(data, 1.0)
+    gaps = [t_to - t_from for _, t_from, t_to in marks]
+    print(f"gaps marked at 200x: {len(marks)}, {min(gaps):.1f}-{max(gaps):.1f} s of test time")
+    assert {10, 30, 50, 70} <= {int(row) for row, _, _ in marks}  # the row after each stall starts a gap
+    assert result.summary["stats"]["gaps"] == len(marks) == data.meta["final"]["stats"]["gaps"]
+    assert result.summary["stats"]["max_gap_s"] == pytest.approx(max(gaps))
+    # the log starts with the first step: test time and step time 0 at the first sample, the origin recorded
+    assert data.t[0] == 0.0 and data.columns["Step Time / s"][0] == 0.0
+    assert Catalog().get(result.run_id).t0 == data.meta["t0_s"]

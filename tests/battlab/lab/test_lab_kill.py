@@ -156,6 +156,9 @@ def test_kill_9_mid_run_then_resume(tester: dict[str, str], home: Path, tmp_path
     gap = t[n] - t[n - 1]
     assert gap > 60.0  # the outage (kill → resume) is the one long gap, at the mark
     assert np.sum(np.diff(t) > 60.0) == 1
+    # every gap in sampling is marked, the outage and any stall of either session (marks copied on resume)
+    assert [int(m[0]) for m in data.meta["gaps"]] == [int(k) + 1 for k in np.flatnonzero(np.diff(t) > 1.5)]
+    assert [n, t[n - 1], t[n]] in data.meta["gaps"]
     steps = data.meta["final"]["steps"]
     assert [(s["step_index"], s["status"]) for s in steps] == [
         (1, "completed"),
