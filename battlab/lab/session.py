@@ -32,9 +32,14 @@ from protocols.errors import InputError
 log = logging.getLogger("battlab.lab")
 
 VIRTUAL = "virtual"
-#: link timeout on an accelerated clock, in virtual seconds (2 s real on a real bench)
+#: link timeout on an accelerated clock, in virtual seconds, and at most this many real seconds: a reply lost on a
+#: 1x bench costs one such wait and a retry, and a dead instrument stops the run within about a second (a URL's own
+#: ``timeout=`` option wins)
 LINK_TIMEOUT_VIRTUAL_S = 15.0
-REAL_LINK_TIMEOUT_S = 2.0
+REAL_LINK_TIMEOUT_S = 0.2
+#: the drivers' own retries of a failed exchange during a run: none for the cycler (the engine retries, within its
+#: time budget: :mod:`battlab.lab.calls`), one for the chamber (a Modbus transaction lost now and then)
+CYCLER_RETRIES, CHAMBER_RETRIES = 0, 1
 
 
 @dataclass(frozen=True)
@@ -146,16 +151,20 @@ def open_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambie
         chamber_url = lab.chamber_url if chamber_url == VIRTUAL else chamber_url
     cycler: Cycler | None = None
     try:
-        cycler = open_cycler(cycler_url, dialect=dialect)
+        cycler = open_cycler(cycler_url, dialect=dialect, retries=CYCLER_RETRIES)
         clock: Clock = cycler.clock() if hasattr(cycler, "clock") else RealClock()
         speed = float(getattr(clock, "speed", 1.0))
         link_timeout = min(REAL_LINK_TIMEOUT_S, max(0.005, LINK_TIMEOUT_VIRTUAL_S / speed))
         adapter = getattr(cycler, "adapter", None)
-        if speed > 1.0 and adapter is not None and hasattr(adapter, "timeout_s"):
+        if not _has_timeout(cycler_url) and adapter is not None and hasattr(adapter, "timeout_s"):
             adapter.timeout_s = link_timeout  # the link timeout follows the instrument's clock
         # RTU framing paces frames by the baud rate (~40 ms for a 15-register reply at 9600 baud)
         floor = 0.25 if chamber_url.startswith("modbus-rtu") else 0.05
-        chamber = open_chamber(chamber_url, timeout_s=max(floor, min(1.0, link_timeout)))
+        chamber = open_chamber(
+            chamber_url,
+            timeout_s=None if _has_timeout(chamber_url) else max(floor, link_timeout),
+            retries=CHAMBER_RETRIES,
+        )
     except BaseException:
         if cycler is not None:
             cycler.close()
@@ -163,6 +172,13 @@ def open_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambie
             lab.stop()
         raise
     return Bench(cycler, chamber, clock, speed, lab)
+
+
+def _has_timeout(url: str) -> bool:
+    """The URL sets its own link timeout (``?timeout=SECONDS``)."""
+    from drivers.urls import parse_url
+
+    return url.strip() != VIRTUAL and parse_url(url).option("timeout") is not None
 
 
 def watchdog_for(speed: float) -> float:

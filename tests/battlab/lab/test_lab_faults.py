@@ -14,7 +14,9 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -26,8 +28,9 @@ from battlab.cli import main
 from battlab.io.logged import LoggedData
 from battlab.io.logs import read_log
 from battlab.lab.catalog import Catalog
-from battlab.lab.documents import Subscriber
+from battlab.lab.documents import RunStop, Subscriber
 from battlab.lab.session import RunResult, RunSettings, start_run
+from drivers.virtual.faults import Fault
 from drivers.virtual.lab import VirtualLab
 
 BATTLAB = [sys.executable, "-c", "from battlab.cli import main; main()"]
@@ -182,3 +185,101 @@ def test_stalls_of_the_runner_leave_marked_gaps_and_the_first_row_starts_the_ste
     # the log starts with the first step: test time and step time 0 at the first sample, the origin recorded
     assert data.t[0] == 0.0 and data.columns["Step Time / s"][0] == 0.0
     assert Catalog().get(result.run_id).t0 == data.meta["t0_s"]
+
+
+# -- faults at 1x: the run stops within a second ---------------------------------------------------------------
+AT_1X = """
+name = "faults at 1x"
+[run]
+stable_hold_s = 0
+[[steps]]
+kind = "rest"
+until = "time >= 2"
+[[steps]]
+kind = "cc"
+current = -2.7
+until = "time >= 8"
+"""
+
+
+class FaultAt(Subscriber):
+    """At the ``row``-th event, arms ``fault`` to fire ``after_s`` real seconds later (between two samples, from
+    another thread, as a real fault would); records the lab's clock at the fault and at the stop document."""
+
+    def __init__(self, lab: VirtualLab, row: int, fault: Callable[[], None], after_s: float = 0.4) -> None:
+        self.lab, self.row, self.fault, self.after_s = lab, row, fault, after_s
+        self.n = 0
+        self.t_fault: float | None = None
+        self.t_stop: float | None = None
+        self.timer: threading.Timer | None = None
+
+    def _fire(self) -> None:
+        self.t_fault = self.lab.clock.now()
+        self.fault()
+
+    def event(self, row: tuple[float, ...]) -> None:
+        self.n += 1
+        if self.n == self.row:
+            self.timer = threading.Timer(self.after_s, self._fire)
+            self.timer.start()
+
+    def stop(self, doc: RunStop) -> None:
+        self.t_stop = self.lab.clock.now()
+        if self.timer is not None:
+            self.timer.cancel()
+
+    @property
+    def fault_to_stop_s(self) -> float:
+        assert self.t_fault is not None and self.t_stop is not None, "the fault did not fire"
+        return self.t_stop - self.t_fault
+
+
+def _fault_run(make_lab, tmp_path: Path, fault: str, **lab_config: object) -> tuple[RunResult, FaultAt, VirtualLab]:
+    lab = make_lab(soc0=0.5, speed=1.0, **lab_config)
+    actions = {
+        "tester closed": lab.cycler_server.stop,  # the tester's process gone: connection closed, then refused
+        "no reply": lambda: lab.scpi_faults.schedule(Fault.DROP, 10**6),  # a hung tester: nothing answers
+        "chamber alarm": lambda: lab.trigger_chamber_alarm(2),
+    }
+    probe = FaultAt(lab, 5, actions[fault])  # in the CC step, 0.4 s after its second sample
+    result = run_on(lab, AT_1X, tmp_path, extra_subscribers=(probe,))
+    shutdown = result.summary["shutdown"]
+    sent = shutdown["output_off_sent_t_s"] - probe.t_fault
+    print(f"{fault} at 1x: output off sent {sent:.2f} s, run stopped {probe.fault_to_stop_s:.2f} s after the fault")
+    assert result.status == "aborted"
+    assert 0.0 < sent <= 1.0 and probe.fault_to_stop_s <= 1.5
+    data = read_log(result.log_path)
+    assert data.meta["final"]["status"] == "aborted" and data.meta["final"]["reason"] == result.reason
+    assert data.columns["Step Index / 1"][-1] == 2 and data.t[-1] >= 3.0  # every sample up to the fault is logged
+    assert Catalog().get(result.run_id).reason == result.reason
+    return result, probe, lab
+
+
+@pytest.mark.parametrize("fault", ["tester closed", "no reply"])
+def test_a_dead_tester_stops_the_run_within_a_second_at_1x(make_lab, home: Path, tmp_path: Path, fault: str) -> None:
+    result, _, _ = _fault_run(make_lab, tmp_path, fault)
+    assert result.reason.startswith("communication: ") and "cycler" in result.reason
+
+
+def test_a_chamber_fault_stops_the_run_within_a_second_at_1x(make_lab, home: Path, tmp_path: Path) -> None:
+    """No hard-wired interlock: only the runner's own watch of the chamber sees the alarm."""
+    result, _, lab = _fault_run(make_lab, tmp_path, "chamber alarm", interlock=False)
+    assert result.reason.startswith("chamber: ") and "chamber alarm: alarm 1" in result.reason
+    assert result.summary["shutdown"]["output_off_confirmed"] and not lab.snapshot()["output_on"]
+
+
+def test_a_transient_blip_at_1x_is_survived_by_the_retry(make_lab, home: Path, tmp_path: Path) -> None:
+    lab = make_lab(soc0=0.5, speed=1.0)
+
+    def blip() -> None:  # a reply lost, then the connection dropped: two failed exchanges in a row
+        lab.scpi_faults.schedule(Fault.LOSE_REPLY)
+        lab.scpi_faults.schedule(Fault.DISCONNECT)
+
+    probe = FaultAt(lab, 4, blip, after_s=0.9)
+    result = run_on(lab, AT_1X, tmp_path, extra_subscribers=(probe,))
+    assert result.status == "completed", result.reason
+    assert lab.scpi_faults.injected[Fault.LOSE_REPLY] == 1 and lab.scpi_faults.injected[Fault.DISCONNECT] == 1
+    assert result.summary["stats"]["retries"] >= 1
+    data = read_log(result.log_path)
+    assert [s["status"] for s in data.meta["final"]["steps"]] == ["completed", "completed"]
+    check_gaps_marked(data, 1.0)
