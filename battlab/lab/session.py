@@ -17,7 +17,7 @@ from typing import Any
 
 from battlab.io.data import NET_CAPACITY
 from battlab.lab import logfile
-from battlab.lab.catalog import Catalog, RunLock
+from battlab.lab.catalog import Catalog, RunLock, RunRecord
 from battlab.lab.documents import CatalogSink, LogSink, Subscriber
 from battlab.lab.engine import EngineConfig, RunEngine, RunState
 from battlab.lab.limits import VIRTUAL_LIMITS, CellWindow, InstrumentLimits
@@ -151,8 +151,14 @@ def open_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambie
         chamber_url = lab.chamber_url if chamber_url == VIRTUAL else chamber_url
     cycler: Cycler | None = None
     try:
-        cycler = open_cycler(cycler_url, dialect=dialect, retries=CYCLER_RETRIES)
-        clock: Clock = cycler.clock() if hasattr(cycler, "clock") else RealClock()
+        try:
+            cycler = open_cycler(cycler_url, dialect=dialect, retries=CYCLER_RETRIES)
+        except (InstrumentError, OSError) as exc:
+            raise InputError(f"cycler {settings.cycler_url}: {_detail(exc)}") from None
+        try:
+            clock: Clock = cycler.clock() if hasattr(cycler, "clock") else RealClock()
+        except (InstrumentError, OSError) as exc:
+            raise InputError(f"cycler {settings.cycler_url}: does not answer: {_detail(exc)}") from None
         speed = float(getattr(clock, "speed", 1.0))
         link_timeout = min(REAL_LINK_TIMEOUT_S, max(0.005, LINK_TIMEOUT_VIRTUAL_S / speed))
         adapter = getattr(cycler, "adapter", None)
@@ -160,11 +166,14 @@ def open_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambie
             adapter.timeout_s = link_timeout  # the link timeout follows the instrument's clock
         # RTU framing paces frames by the baud rate (~40 ms for a 15-register reply at 9600 baud)
         floor = 0.25 if chamber_url.startswith("modbus-rtu") else 0.05
-        chamber = open_chamber(
-            chamber_url,
-            timeout_s=None if _has_timeout(chamber_url) else max(floor, link_timeout),
-            retries=CHAMBER_RETRIES,
-        )
+        try:
+            chamber = open_chamber(
+                chamber_url,
+                timeout_s=None if _has_timeout(chamber_url) else max(floor, link_timeout),
+                retries=CHAMBER_RETRIES,
+            )
+        except (InstrumentError, OSError) as exc:
+            raise InputError(f"chamber {settings.chamber_url}: cannot connect: {_detail(exc)}") from None
     except BaseException:
         if cycler is not None:
             cycler.close()
@@ -172,6 +181,30 @@ def open_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambie
             lab.stop()
         raise
     return Bench(cycler, chamber, clock, speed, lab)
+
+
+def connect_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambient_degC: float) -> Bench:
+    """:func:`open_bench`, then each instrument asked for its identity: an instrument that cannot be reached or
+    does not answer is an :class:`InputError` naming it, its URL and what failed (nothing has started yet)."""
+    bench = open_bench(settings, cell, limits, ambient_degC)
+    try:
+        for role, url, device in (
+            ("cycler", settings.cycler_url, bench.cycler),
+            ("chamber", settings.chamber_url, bench.chamber),
+        ):
+            try:
+                device.identify()
+            except (InstrumentError, OSError) as exc:
+                raise InputError(f"{role} {url}: does not answer: {_detail(exc)}") from None
+    except BaseException:
+        bench.close()
+        raise
+    return bench
+
+
+def _detail(exc: BaseException) -> str:
+    """What an instrument error says, without the instrument's name (the caller names it)."""
+    return " ".join(str(getattr(exc, "detail", exc)).split())
 
 
 def _has_timeout(url: str) -> bool:
@@ -218,12 +251,39 @@ def _prepare(plan: Plan, settings: RunSettings) -> tuple[Any, InstrumentLimits, 
     return cell, limits, envelope
 
 
+@dataclass
+class _Connected:
+    """A run's lock held, its plan checked, its instruments connected and answering."""
+
+    bench: Bench
+    cell: Any
+    limits: InstrumentLimits
+    envelope: Any
+
+
+@contextmanager
+def _connected(plan: Plan, settings: RunSettings, log_path: Path) -> Iterator[_Connected]:
+    """The run lock on ``log_path``, then the bench connected (:func:`connect_bench`); both released on exit. Any
+    failure here is before the run: the caller has recorded nothing yet."""
+    cell, limits, envelope = _prepare(plan, settings)
+    lock = RunLock(log_path)
+    lock.acquire()
+    try:
+        bench = connect_bench(settings, cell, limits, plan.options.ambient_degC)
+        try:
+            yield _Connected(bench, cell, limits, envelope)
+        finally:
+            bench.close()
+    finally:
+        lock.release()
+
+
 def _execute(
     *,
     run_id: int,
     catalog: Catalog,
     plan: Plan,
-    settings: RunSettings,
+    connected: _Connected,
     log_path: Path,
     open_writer: Callable[[Any, Any], Any],
     config_overrides: dict[str, Any],
@@ -231,47 +291,30 @@ def _execute(
     display: bool,
     extra_subscribers: tuple[Subscriber, ...],
 ) -> RunResult:
-    cell, limits, envelope = _prepare(plan, settings)
-    lock = RunLock(log_path)
-    lock.acquire()
-    bench: Bench | None = None
-    try:
-        try:
-            bench = open_bench(settings, cell, limits, plan.options.ambient_degC)
-        except InputError as exc:
-            catalog.update(run_id, status="aborted", reason=f"instruments: {exc}")
-            raise
-        except (InstrumentError, OSError) as exc:
-            reason = f"instruments: {exc}"
-            catalog.update(run_id, status="aborted", reason=reason)
-            return RunResult(run_id, "aborted", reason, log_path)
-        watchdog = plan.options.watchdog_s or watchdog_for(bench.speed)
-        config = EngineConfig(
-            envelope=envelope,
-            clock=bench.clock,
-            run_id=run_id,
-            meta={**meta, "limits": limits.to_dict(), "clock_speed": bench.speed},
-            watchdog_s=watchdog,
-            safe_set_point_degC=limits.chamber.safe_set_point,
-            soc_from_voltage=cell.soc_from_voltage,
-            **config_overrides,
-        )
-        sink = LogSink(open_writer, plan.options.flush_s)
-        subscribers: list[Subscriber] = [sink, CatalogSink(catalog, run_id, lambda: sink.rows)]
-        subscribers.append(ProgressDisplay(plan.protocol.name, len(plan.entries()), quiet=not display))
-        subscribers.extend(extra_subscribers)
-        engine = RunEngine(plan, bench.cycler, bench.chamber, config, subscribers)
-        with _safe_stop_signals(engine):
-            state = engine.run()
-        summary = {"stats": engine.stats.to_dict(), "shutdown": engine.shutdown.to_dict() if engine.shutdown else None}
-        if sink.writer is not None and state in (RunState.COMPLETED, RunState.ABORTED, RunState.STOPPED):
-            for b in logfile.drop_backups(log_path):
-                log.info("removed %s (its rows are in %s)", b, log_path)
-        return RunResult(run_id, state.value, engine.reason, log_path, summary)
-    finally:
-        if bench is not None:
-            bench.close()
-        lock.release()
+    bench, limits = connected.bench, connected.limits
+    watchdog = plan.options.watchdog_s or watchdog_for(bench.speed)
+    config = EngineConfig(
+        envelope=connected.envelope,
+        clock=bench.clock,
+        run_id=run_id,
+        meta={**meta, "limits": limits.to_dict(), "clock_speed": bench.speed},
+        watchdog_s=watchdog,
+        safe_set_point_degC=limits.chamber.safe_set_point,
+        soc_from_voltage=connected.cell.soc_from_voltage,
+        **config_overrides,
+    )
+    sink = LogSink(open_writer, plan.options.flush_s)
+    subscribers: list[Subscriber] = [sink, CatalogSink(catalog, run_id, lambda: sink.rows)]
+    subscribers.append(ProgressDisplay(plan.protocol.name, len(plan.entries()), quiet=not display))
+    subscribers.extend(extra_subscribers)
+    engine = RunEngine(plan, bench.cycler, bench.chamber, config, subscribers)
+    with _safe_stop_signals(engine):
+        state = engine.run()
+    summary = {"stats": engine.stats.to_dict(), "shutdown": engine.shutdown.to_dict() if engine.shutdown else None}
+    if sink.writer is not None and state in (RunState.COMPLETED, RunState.ABORTED, RunState.STOPPED):
+        for b in logfile.drop_backups(log_path):
+            log.info("removed %s (its rows are in %s)", b, log_path)
+    return RunResult(run_id, state.value, engine.reason, log_path, summary)
 
 
 def start_run(
@@ -293,8 +336,22 @@ def start_run(
         raise InputError(f"{log_path}: already exists; a run log is never overwritten")
     if not log_path.parent.is_dir():
         raise InputError(f"{log_path.parent}: no such directory for the run log")
-    _prepare(plan, settings)  # refuse a bad plan before it is catalogued
     catalog = catalog or Catalog()
+    # the plan checked and the instruments answering before the run is catalogued
+    with _connected(plan, settings, log_path) as connected:
+        return _start(plan, plan_path, settings, log_path, catalog, connected, display, extra_subscribers)
+
+
+def _start(
+    plan: Plan,
+    plan_path: str | None,
+    settings: RunSettings,
+    log_path: Path,
+    catalog: Catalog,
+    connected: _Connected,
+    display: bool,
+    extra_subscribers: tuple[Subscriber, ...],
+) -> RunResult:
     from battlab.io.logs import run_meta
 
     run_id = catalog.create(
@@ -305,10 +362,8 @@ def start_run(
         settings=settings.to_dict(),
         n_entries=len(plan.entries()),
     )
-    from battlab.cell import Cell
-
     meta = run_meta(
-        cell=Cell.load(settings.cell),
+        cell=connected.cell,
         plan=plan.to_dict(),
         instruments={
             "cycler": {"url": settings.cycler_url, "dialect": dialect_name(settings, None)},
@@ -325,7 +380,7 @@ def start_run(
         run_id=run_id,
         catalog=catalog,
         plan=plan,
-        settings=settings,
+        connected=connected,
         log_path=log_path,
         open_writer=lambda columns, m: logfile.create(log_path, columns, m),
         config_overrides={},
@@ -355,7 +410,24 @@ def resume_run(
     settings = replace(RunSettings.from_dict(rec.settings), **dict(overrides or {}))
     plan = Plan.from_dict(rec.plan, source=f"run {run_id} (catalog)")
     log_path = Path(rec.log_path)
-    _prepare(plan, settings)  # refuse before anything changes
+    # the plan checked and the instruments answering before anything changes
+    previous_status = rec.shown_status  # read before this runner holds the run's lock
+    with _connected(plan, settings, log_path) as connected:
+        return _resume(rec, previous_status, catalog, plan, settings, log_path, connected, display, extra_subscribers)
+
+
+def _resume(
+    rec: RunRecord,
+    previous_status: str,
+    catalog: Catalog,
+    plan: Plan,
+    settings: RunSettings,
+    log_path: Path,
+    connected: _Connected,
+    display: bool,
+    extra_subscribers: tuple[Subscriber, ...],
+) -> RunResult:
+    run_id = rec.id
     unreadable = logfile.set_aside_unreadable(log_path)
     old = logfile.recover(log_path)
     n_old = len(old) if old is not None else 0
@@ -391,7 +463,7 @@ def resume_run(
         "resume": rec.resumes + 1,
         "row": n_old,
         "last_test_time_s": last_tt,
-        "previous_status": rec.shown_status,
+        "previous_status": previous_status,
         "previous_reason": rec.reason,
         "settings": settings.to_dict(),
     }
@@ -420,7 +492,7 @@ def resume_run(
         run_id=run_id,
         catalog=catalog,
         plan=plan,
-        settings=settings,
+        connected=connected,
         log_path=log_path,
         open_writer=lambda columns, m: logfile.reopen(log_path, m)[0],
         config_overrides=overrides_cfg,
@@ -432,6 +504,7 @@ def resume_run(
 
 __all__ = [
     "Bench",
+    "connect_bench",
     "RunResult",
     "RunSettings",
     "open_bench",

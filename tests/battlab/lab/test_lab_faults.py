@@ -8,9 +8,11 @@ durations, except generous bounds where a hang is the defect.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import textwrap
@@ -27,6 +29,7 @@ from lab_helpers import plan_from
 from battlab.cli import main
 from battlab.io.logged import LoggedData
 from battlab.io.logs import read_log
+from battlab.lab import logfile
 from battlab.lab.catalog import Catalog
 from battlab.lab.documents import RunStop, Subscriber
 from battlab.lab.session import RunResult, RunSettings, start_run
@@ -283,3 +286,74 @@ def test_a_transient_blip_at_1x_is_survived_by_the_retry(make_lab, home: Path, t
     data = read_log(result.log_path)
     assert [s["status"] for s in data.meta["final"]["steps"]] == ["completed", "completed"]
     check_gaps_marked(data, 1.0)
+
+
+# -- instruments that cannot be reached before the run -----------------------------------------------------------
+def _closed_port() -> int:
+    """A loopback port nobody listens on (bound, then released)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.mark.parametrize("dead", ["cycler", "chamber", "silent cycler"])
+def test_unreachable_instruments_are_one_line_exit_2_and_no_run(
+    make_lab, home: Path, tmp_path: Path, dead: str
+) -> None:
+    """Nothing started: no catalog record, no log, no resume hint, no retry chatter from the drivers or pymodbus."""
+    lab = make_lab(soc0=0.5)
+    urls = {"cycler": lab.cycler_url, "chamber": lab.chamber_url}
+    with contextlib.ExitStack() as stack:
+        if dead == "silent cycler":  # accepts the connection, never answers (a hung instrument)
+            silent = stack.enter_context(socket.socket())
+            silent.bind(("127.0.0.1", 0))
+            silent.listen(1)
+            urls["cycler"] = f"socket://127.0.0.1:{silent.getsockname()[1]}"
+        elif dead == "cycler":
+            urls["cycler"] = f"socket://127.0.0.1:{_closed_port()}"
+        else:
+            urls["chamber"] = f"modbus-tcp://127.0.0.1:{_closed_port()}"
+        plan, out = tmp_path / "plan.toml", tmp_path / "run.h5"
+        plan.write_text(SHORT)
+        env = {**os.environ, "BATTLAB_HOME": str(home)}
+        args = ["run", str(plan), "--cycler", urls["cycler"], "--chamber", urls["chamber"], "-o", str(out), "--quiet"]
+        done = subprocess.run([*BATTLAB, *args], env=env, capture_output=True, text=True, timeout=120)
+    role = dead.split()[-1]
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and done.stdout == "", done.stderr
+    assert lines[0].startswith(f"error: {role} {urls[role]}: ") and "resume" not in lines[0]
+    assert not out.exists() and not list(tmp_path.glob("run.h5*"))
+    assert Catalog().list() == []
+    if dead == "chamber":  # the failed attempts are there when asked for
+        verbose = subprocess.run([*BATTLAB, *args, "--verbose"], env=env, capture_output=True, text=True, timeout=120)
+        assert verbose.returncode == 2 and lines[0] in verbose.stderr
+        assert "failed (attempt 1 of 2)" in verbose.stderr and "pymodbus" in verbose.stderr
+
+
+def test_a_resume_with_an_unreachable_instrument_changes_nothing(make_lab, home: Path, tmp_path: Path) -> None:
+    lab = make_lab(soc0=0.5)
+
+    class Interrupt(Subscriber):
+        def __init__(self) -> None:
+            self.n = 0
+
+        def event(self, row: tuple[float, ...]) -> None:
+            self.n += 1
+            if self.n == 30:
+                os.kill(os.getpid(), signal.SIGINT)
+
+    first = run_on(lab, SHORT, tmp_path, extra_subscribers=(Interrupt(),))
+    assert first.status == "stopped"
+    before, rows = Catalog().get(first.run_id), len(read_log(first.log_path))
+    url = f"socket://127.0.0.1:{_closed_port()}"
+    result = CliRunner().invoke(main, ["runs", "resume", str(first.run_id), "--cycler", url, "--quiet"])
+    assert result.exit_code == 2 and result.output.strip().splitlines() == [
+        f"error: cycler {url}: cannot connect: [Errno 111] Connection refused"
+    ]
+    after = Catalog().get(first.run_id)
+    assert (after.status, after.resumes, after.settings) == (before.status, before.resumes, before.settings)
+    assert len(read_log(first.log_path)) == rows and not logfile.backups(first.log_path)
+    resumed = CliRunner().invoke(main, ["runs", "resume", str(first.run_id), "--quiet"])
+    assert resumed.exit_code == 0, resumed.output
+    assert Catalog().get(first.run_id).status == "completed"
