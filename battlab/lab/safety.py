@@ -103,26 +103,37 @@ def safe_shutdown(
     """Output off, current 0, chamber to ``safe_set_point_degC`` (None: leave it); never raises.
 
     An instrument in ``unreachable`` (its link just failed) is spared what would wait out its link's timeouts, so
-    the run stops at once: the cycler gets one attempt at output off (sent, confirmed if the link allows), nothing
-    more; the chamber is left as it is.
+    the run stops at once: the cycler gets output off sent once (``send_off``: a write without waiting for a
+    confirmation, where the driver has it), nothing more; the chamber is left as it is.
     """
     out = Shutdown()
     now = clock.now if clock is not None else (lambda: None)
     cycler_dead = any(d is cycler for d in unreachable)
-    for attempt in range(1 if cycler_dead else 2):
-        if out.output_off_sent_t_s is None:
-            out.output_off_sent_t_s = now()
+    if cycler_dead:
+        out.output_off_sent_t_s = now()
+        send_off = getattr(cycler, "send_off", None)
         try:
-            out.output_off_confirmed = bool(cycler.safe_off())
-        except Exception as exc:  # safe_off must not raise, but a foreign driver might
+            if callable(send_off):  # a write: on a dead link there is no confirmation to wait for
+                if not send_off():
+                    out.problems.append("output off could not be sent")
+            else:
+                out.output_off_confirmed = bool(cycler.safe_off())
+        except Exception as exc:  # a foreign driver might raise
             out.problems.append(f"output off: {exc}")
-        if out.output_off_confirmed or attempt or cycler_dead:
-            break
-        try:  # an older error in the queue (e.g. the fault itself) reads as a rejection of 'output off': drain
-            for code, message in cycler.errors():
-                out.problems.append(f"cycler error queue: {code},{message}")
-        except Exception:
-            break
+    else:
+        out.output_off_sent_t_s = now()
+        for attempt in range(2):
+            try:
+                out.output_off_confirmed = bool(cycler.safe_off())
+            except Exception as exc:  # safe_off must not raise, but a foreign driver might
+                out.problems.append(f"output off: {exc}")
+            if out.output_off_confirmed or attempt:
+                break
+            try:  # an older error in the queue (e.g. the fault itself) reads as a rejection of 'output off': drain
+                for code, message in cycler.errors():
+                    out.problems.append(f"cycler error queue: {code},{message}")
+            except Exception:
+                break
     if not out.output_off_confirmed:
         out.problems.append("output off not confirmed by the cycler (its watchdog turns it off if the link is dead)")
     if not cycler_dead:

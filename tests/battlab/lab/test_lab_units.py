@@ -3,7 +3,10 @@ the run catalog and the resume copy of a log."""
 
 from __future__ import annotations
 
+import contextlib
 import math
+import socket
+import time
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +23,7 @@ from battlab.lab.documents import LogSink, RunStart
 from battlab.lab.limits import VIRTUAL_LIMITS, CellWindow, Envelope, InstrumentLimits
 from battlab.lab.plan import Plan
 from battlab.lab.preflight import check_plan
-from battlab.lab.safety import check_sample
+from battlab.lab.safety import check_sample, safe_shutdown
 from battlab.lab.steps import (
     CCCVExecutor,
     CCExecutor,
@@ -29,6 +32,8 @@ from battlab.lab.steps import (
     ResistanceEstimate,
     Sample,
 )
+from drivers.clock import RealClock
+from drivers.scpi.cycler import ScpiCycler
 from protocols import Profile
 from protocols.errors import InputError
 from protocols.protocol import CCCV, ConstantCurrent, ConstantVoltage, ProfileStep
@@ -246,6 +251,30 @@ ENV = Envelope(2.5, 4.2, 5.0, 3.0, 318.15)
 def test_check_sample(sample: Sample, kind: str | None) -> None:
     bad = check_sample(sample, ENV)
     assert (bad.kind if bad else None) == kind
+
+
+def test_the_safe_shutdown_of_a_dead_link_sends_output_off_without_waiting_for_it(tmp_path: Path) -> None:
+    """A hung tester (accepts, never answers): output off is written once, no reply is waited for (the link's
+    timeout here is 5 s), nothing else is asked of it, and the shutdown says so."""
+    received = bytearray()
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(1)
+        cycler = ScpiCycler.open(f"socket://127.0.0.1:{server.getsockname()[1]}", timeout_s=5.0, retries=0)
+        conn, _ = server.accept()
+        with conn:
+            conn.settimeout(0.5)
+            w0 = time.perf_counter()
+            out = safe_shutdown(cycler, None, None, clock=RealClock(), unreachable=(cycler,))
+            elapsed = time.perf_counter() - w0
+            with contextlib.suppress(TimeoutError):
+                while chunk := conn.recv(4096):
+                    received += chunk
+        cycler.close()
+    assert elapsed < 2.5  # a generous bound: waiting for the reply would take the 5 s timeout
+    assert bytes(received).splitlines() == [b"OUTP 0"]
+    assert not out.output_off_confirmed and out.output_off_sent_t_s is not None and out.t_s >= out.output_off_sent_t_s
+    assert out.current_after_A is None and any("not confirmed" in p for p in out.problems)
 
 
 # -- catalog --------------------------------------------------------------------------------------------------
