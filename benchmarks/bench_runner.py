@@ -5,8 +5,9 @@
    over loopback sockets (SCPI cycler + Modbus TCP chamber), at each ``--speeds``; the tester runs in this process
    (threads) or is served by ``battlab virtual-tester serve`` in another process. Printed: wall time of the profile
    step, achieved real-time factor (virtual s / wall s), samples logged vs the ideal, the sampling lateness, the
-   largest gap between samples, the wall time per sample inside instrument calls, and the runner's own overhead
-   per sample (wall time outside instrument calls and sleeps: executors, safety checks, logging, catalog).
+   largest gap between samples and the gaps marked in the log (over 1.5 sample periods), the wall time per sample
+   inside instrument calls, and the runner's own overhead per sample (wall time outside instrument calls and
+   sleeps: executors, safety checks, logging, catalog).
 2. Runner overhead without instruments: the same engine on in-memory instruments whose clock jumps to each next
    sample (no sockets, no sleeping): wall time per sample is the runner's cost alone, logging included.
 
@@ -102,6 +103,7 @@ def bench_profile(plan: Plan, speed: float, where: str, workdir: Path, physics: 
         "samples": int(prof.sum()),
         "ideal_samples": int(duration / plan.options.sample_period_s) + 1,
         "max_gap_s": float(dt.max()),
+        "gaps_marked": int(stats["gaps"]),
         "p99_gap_s": float(np.percentile(dt, 99)),
         "mean_late_s": stats["mean_late_s"],
         "max_late_s": stats["max_late_s"],
@@ -229,7 +231,7 @@ def main() -> None:
         "start_run, 1 s sampling)"
     )
     head = f"  {'physics':<8}{'server':<8}{'speed':>7}{'wall s':>8}{'RTF':>8}{'samples':>10}{'late mean s':>12}"
-    print(head + f"{'late max s':>11}{'gap max s':>10}{'io/sample':>11}{'runner/sample':>14}  status")
+    print(head + f"{'late max s':>11}{'gap max s':>10}{'gaps':>6}{'io/sample':>11}{'runner/sample':>14}  status")
     physics_list = ["dfn"] if args.quick else args.physics
     for physics, where, speed in ((p, w, s) for p in physics_list for w in wheres for s in speeds):
         if physics == "standin" and where == "process":
@@ -239,7 +241,7 @@ def main() -> None:
         print(
             f"  {physics:<8}{where:<8}{speed:>7g}{r['profile_wall_s']:>8.2f}{r['rtf']:>8.0f}"
             f"{r['samples']:>5}/{r['ideal_samples']:<5}{r['mean_late_s']:>11.3f}{r['max_late_s']:>11.2f}"
-            f"{r['max_gap_s']:>10.2f}{1e6 * r['io_per_sample_s']:>8.0f} us"
+            f"{r['max_gap_s']:>10.2f}{r['gaps_marked']:>6}{1e6 * r['io_per_sample_s']:>8.0f} us"
             f"{1e6 * r['overhead_per_sample_s']:>11.0f} us  {r['status']}"
         )
     null = bench_null(one_hour_plan(args.profile), work)

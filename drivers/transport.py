@@ -110,7 +110,9 @@ class LineAdapter:
             try:
                 self._serial = serial.serial_for_url(self.port, baudrate=self.baudrate, timeout=self.timeout_s)
             except (serial.SerialException, OSError, ValueError) as exc:
-                raise CommunicationError(self.name, f"cannot open {self.port}: {exc}") from exc
+                # pyserial says "Could not open port <port>: <why>"; the error names the port once
+                why = str(exc).removeprefix(f"Could not open port {self.port}: ")
+                raise CommunicationError(self.name, f"cannot connect: {why}") from exc
             self._buffer.clear()
 
     def close(self) -> None:
@@ -232,7 +234,8 @@ def with_retries(
     """Run an idempotent exchange, retrying ``retries`` times on :class:`CommunicationError`.
 
     ``recover`` runs between attempts (e.g. reconnect); ``backoff_s`` doubles after each failure.
-    The last CommunicationError is re-raised with the attempt count in its message.
+    The last CommunicationError is re-raised with the attempt count in its message. Failed attempts are logged at
+    INFO (``--verbose``): the caller reports the failure that matters.
     """
     last: CommunicationError | None = None
     delay = backoff_s
@@ -241,7 +244,7 @@ def with_retries(
             return attempt()
         except CommunicationError as exc:
             last = exc
-            _log_drivers.warning("%s: %s failed (attempt %d of %d): %s", name, what, n + 1, retries + 1, exc)
+            _log_drivers.info("%s: %s failed (attempt %d of %d): %s", name, what, n + 1, retries + 1, exc)
             if n == retries:
                 break
             if delay > 0:

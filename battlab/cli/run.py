@@ -1,7 +1,8 @@
 """``battlab run PLAN`` and ``battlab runs list | show | resume``: the experiment runner from the command line.
 
 Exit codes: 0 completed, 1 aborted (the reason on stderr), 130 stopped by Ctrl-C, 2 a user error (bad plan,
-limits, URL: one line).
+limits, URL, an instrument that cannot be reached or does not answer before the run starts: one line, and nothing
+catalogued or logged).
 """
 
 from __future__ import annotations
@@ -33,8 +34,12 @@ def _finish(result: Any) -> None:
 
 
 def _logging(verbose: bool) -> None:
+    """WARNING and up, one line each; ``--verbose``: INFO (state changes, every failed exchange and retry). pymodbus
+    logs each failed connection and frame itself: silenced unless verbose (the runner reports what failed)."""
     fmt = "%(levelname)s %(name)s: %(message)s"
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format=fmt)
+    for name in ("pymodbus", "pymodbus.logging"):
+        logging.getLogger(name).setLevel(logging.NOTSET if verbose else logging.CRITICAL)
 
 
 @click.command("run")

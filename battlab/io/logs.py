@@ -6,15 +6,19 @@ Layout (format ``battlab-run-log``, version 1)::
                         meta (JSON: cell, protocol/plan, instruments and identities, software, hashes, …),
                         created (ISO 8601 UTC); after a clean close also final (JSON) and rows
     /data        float64 (n_rows, n_columns), chunked, unlimited rows; attrs columns, units (the same lists)
+    /gaps        float64 (n_gaps, 3): the row after a gap in sampling, the test times / s of the samples before
+                 and after it (attrs columns); read back as ``meta["gaps"]`` (a list of those triples)
 
 One 2-D dataset (not one per column) makes every append atomic for a reader: it never sees columns of different
-lengths. The writer switches to SWMR mode after creating the file, so readers (``read_log``) may open it at any
-time; rows appended before the last :meth:`LogWriter.flush` survive a killed writer.
+lengths. The writer switches to SWMR mode after creating the file (``defer_swmr``: at its first flush, so that
+:meth:`LogWriter.update_meta` can still complete the metadata), so readers (``read_log``) may open it from then
+on; rows appended before the last :meth:`LogWriter.flush` survive a killed writer.
 
 The lab runner writes through::
 
     w = open_log("run.h5", ["Test Time / s", "Voltage / V", "Current / A", ...], run_meta(...))
     w.append(rows)          # (n, n_columns) array, a sequence of rows, or {column: values}
+    w.mark_gaps(marks)      # (n, 3): row after the gap, test time before and after / s
     w.flush()               # make appended rows durable and visible to readers
     w.close(final_meta)     # optional final metadata (e.g. {"ended_by": None, "status": "completed"})
 """
@@ -34,6 +38,8 @@ from protocols.errors import InputError
 
 FORMAT = "battlab-run-log"
 VERSION = 1
+#: the columns of ``/gaps``
+GAP_COLUMNS = ("Row / 1", "Test Time Before / s", "Test Time After / s")
 
 
 def unit_of(column: str) -> str:
@@ -90,7 +96,9 @@ def run_meta(
 class LogWriter:
     """Appends rows to a run log (SWMR). Use :func:`open_log` to create one; also a context manager."""
 
-    def __init__(self, path: Path, columns: Sequence[str], meta: Mapping[str, Any], chunk_rows: int) -> None:
+    def __init__(
+        self, path: Path, columns: Sequence[str], meta: Mapping[str, Any], chunk_rows: int, defer_swmr: bool = False
+    ) -> None:
         import h5py
 
         self.path = path
@@ -103,7 +111,8 @@ class LogWriter:
         f.attrs["version"] = VERSION
         f.attrs["columns"] = _json(list(self.columns))
         f.attrs["units"] = _json(units)
-        f.attrs["meta"] = _json(dict(meta))
+        self._meta = dict(meta)
+        f.attrs["meta"] = _json(self._meta)
         f.attrs["created"] = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
         ds = f.create_dataset(
             "data",
@@ -115,8 +124,27 @@ class LogWriter:
         ds.attrs["columns"] = _json(list(self.columns))
         ds.attrs["units"] = _json(units)
         self._ds = ds
-        f.swmr_mode = True
+        gaps = f.create_dataset("gaps", shape=(0, 3), maxshape=(None, 3), dtype="f8", chunks=(256, 3))
+        gaps.attrs["columns"] = _json(list(GAP_COLUMNS))
+        self._gaps = gaps
         self._closed = False
+        self._swmr = False
+        if not defer_swmr:
+            self._start_swmr()
+
+    def _start_swmr(self) -> None:
+        if not self._swmr:
+            self._file.swmr_mode = True
+            self._swmr = True
+
+    def update_meta(self, values: Mapping[str, Any]) -> None:
+        """Add to or change the run metadata; only before the first flush of a log opened with ``defer_swmr``
+        (attributes cannot be written in SWMR mode)."""
+        if self._swmr or self._closed:
+            raise RuntimeError(f"{self.path}: metadata can only be changed before the log's first flush")
+        meta = {**self._meta, **values}
+        self._file.attrs["meta"] = _json(meta)
+        self._meta = meta
 
     @property
     def n_rows(self) -> int:
@@ -148,10 +176,23 @@ class LogWriter:
         self._ds.resize((n + block.shape[0], len(self.columns)))
         self._ds[n:] = block
 
+    def mark_gaps(self, marks: Any) -> None:
+        """Record gaps in sampling: rows of (row after the gap, test time before / s, test time after / s)."""
+        if self._closed:
+            raise InputError(f"{self.path}: log is closed")
+        block = np.asarray(marks, dtype=float).reshape(-1, 3)
+        if block.shape[0] == 0:
+            return
+        n = int(self._gaps.shape[0])
+        self._gaps.resize((n + block.shape[0], 3))
+        self._gaps[n:] = block
+
     def flush(self) -> None:
         """Make the appended rows durable and visible to SWMR readers."""
         if not self._closed:
+            self._start_swmr()
             self._ds.flush()
+            self._gaps.flush()
             self._file.flush()
 
     def close(self, final_meta: Mapping[str, Any] | None = None) -> None:
@@ -176,10 +217,18 @@ class LogWriter:
         self.close({"status": "error"} if exc[0] is not None else None)
 
 
-def open_log(path: str | Path, columns: Sequence[str], meta: Mapping[str, Any], *, chunk_rows: int = 1024) -> LogWriter:
+def open_log(
+    path: str | Path,
+    columns: Sequence[str],
+    meta: Mapping[str, Any],
+    *,
+    chunk_rows: int = 1024,
+    defer_swmr: bool = False,
+) -> LogWriter:
     """Create a run log at ``path`` with BDF ``columns`` (must include time, voltage, current) and ``meta``.
 
-    An existing file is an error (logged data is never overwritten).
+    An existing file is an error (logged data is never overwritten). ``defer_swmr``: readers may open the log only
+    from its first flush on, and :meth:`LogWriter.update_meta` works until then.
     """
     path = Path(path)
     cols = list(columns)
@@ -195,40 +244,114 @@ def open_log(path: str | Path, columns: Sequence[str], meta: Mapping[str, Any], 
         _json(dict(meta))
     except TypeError as exc:
         raise InputError(f"{path}: metadata: {exc}") from None
-    return LogWriter(path, cols, meta, chunk_rows)
+    return LogWriter(path, cols, meta, chunk_rows, defer_swmr)
+
+
+#: HDF5's signature, at the start of the superblock (offset 0: battlab's logs have no user block)
+_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+#: A SWMR reader retries a metadata read whose checksum fails (the writer may be mid-flush), sleeping 1 ns, 2 ns,
+#: 4 ns, …; with HDF5's default of 100 attempts a truncated file never fails. 28 attempts bound the retries of one
+#: read at about 0.3 s, ample for a live writer's flush.
+SWMR_READ_ATTEMPTS = 28
+#: a file shorter than its superblock says is re-checked this often, this far apart / s (a live writer extends the
+#: file just after it writes the superblock) before it is called truncated
+_TRUNCATION_CHECKS, _TRUNCATION_WAIT_S = 5, 0.05
+
+
+def _stored_eof(path: Path) -> int | None:
+    """The end-of-file address a version 2/3 superblock records (bytes), or None if there is no such superblock
+    (not HDF5, or an older superblock version this writer never makes)."""
+    with path.open("rb") as fh:
+        head = fh.read(48)
+    if len(head) < 12 or head[:8] != _SIGNATURE or head[8] not in (2, 3):
+        return None
+    size = head[9]  # size of offsets / bytes
+    if size not in (2, 4, 8) or len(head) < 12 + 4 * size:
+        return None
+    base = int.from_bytes(head[12 : 12 + size], "little")
+    eof = int.from_bytes(head[12 + 2 * size : 12 + 3 * size], "little")
+    return base + eof
+
+
+def _check_not_truncated(path: Path) -> None:
+    """Raise InputError when ``path`` is shorter than the end of file its superblock records (a copy cut short, a
+    disk that filled up): HDF5 skips that check for SWMR readers and would retry reading the missing metadata."""
+    import time
+
+    for attempt in range(_TRUNCATION_CHECKS):
+        if attempt:
+            time.sleep(_TRUNCATION_WAIT_S)
+        eof = _stored_eof(path)
+        size = path.stat().st_size
+        if eof is None or size >= eof:
+            return
+    raise InputError(f"{path}: run log truncated: {size} bytes on disk, its HDF5 superblock records {eof}")
+
+
+def _open_swmr(path: Path) -> Any:
+    """``path`` opened read-only as a SWMR reader, with HDF5's metadata read attempts bounded where the library
+    allows setting them (``H5Pset_metadata_read_attempts``, reached through h5py's own HDF5)."""
+    import ctypes
+
+    import h5py
+
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
+    try:
+        fn = ctypes.CDLL(h5py.h5.__file__).H5Pset_metadata_read_attempts
+    except (OSError, AttributeError):
+        fn = None
+    if fn is not None:
+        fn.argtypes, fn.restype = [ctypes.c_int64, ctypes.c_uint], ctypes.c_int
+        fn(fapl.id, SWMR_READ_ATTEMPTS)
+    fid = h5py.h5f.open(str(path).encode(), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ, fapl=fapl)
+    return h5py.File(fid)
 
 
 def read_log(path: str | Path) -> LoggedData:
     """Read a run log (also one still being written, or left by a killed writer) as :class:`LoggedData`.
 
     ``meta`` holds the run metadata plus ``final`` (if closed cleanly), ``created`` and ``complete`` (bool).
+    A truncated or damaged file is an :class:`InputError` naming it, raised within about a second.
     """
-    import h5py
-
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such run log")
+    _check_not_truncated(path)
     try:
-        f = h5py.File(path, "r", libver="latest", swmr=True)
-    except OSError as exc:
-        raise InputError(f"{path}: not a readable HDF5 file ({exc})") from None
-    with f:
-        if f.attrs.get("format") != FORMAT:
-            raise InputError(f"{path}: not a battlab run log (attribute format = {f.attrs.get('format')!r})")
-        if "data" not in f:
-            raise InputError(f"{path}: run log has no /data dataset")
-        ds = f["data"]
-        ds.refresh()
-        block = ds[...]
-        columns = json.loads(ds.attrs["columns"])
-        meta = json.loads(f.attrs.get("meta", "{}"))
-        final = f.attrs.get("final")
-        meta["created"] = str(f.attrs.get("created", ""))
-        meta["complete"] = "rows" in f.attrs
-        if final is not None:
-            meta["final"] = json.loads(final)
+        f = _open_swmr(path)
+    except (OSError, RuntimeError, ValueError) as exc:
+        raise InputError(f"{path}: not a readable HDF5 file ({_one_line(exc)})") from None
+    try:
+        with f:
+            if f.attrs.get("format") != FORMAT:
+                raise InputError(f"{path}: not a battlab run log (attribute format = {f.attrs.get('format')!r})")
+            if "data" not in f:
+                raise InputError(f"{path}: run log has no /data dataset")
+            ds = f["data"]
+            ds.refresh()
+            block = ds[...]
+            columns = json.loads(ds.attrs["columns"])
+            meta = json.loads(f.attrs.get("meta", "{}"))
+            final = f.attrs.get("final")
+            meta["created"] = str(f.attrs.get("created", ""))
+            meta["complete"] = "rows" in f.attrs
+            meta["gaps"] = []
+            if "gaps" in f:  # logs of earlier runners have none
+                f["gaps"].refresh()
+                meta["gaps"] = f["gaps"][...].tolist()
+            if final is not None:
+                meta["final"] = json.loads(final)
+    except (OSError, RuntimeError, KeyError, ValueError) as exc:
+        raise InputError(f"{path}: run log damaged, cannot be read ({_one_line(exc)})") from None
+    if block.ndim != 2 or block.shape[1] != len(columns):
+        raise InputError(f"{path}: run log /data has shape {block.shape}, expected (rows, {len(columns)})")
     cols = {c: block[:, k] for k, c in enumerate(columns)}
     return LoggedData(path.stem, cols, meta, str(path))
 
 
-__all__ = ["FORMAT", "VERSION", "LogWriter", "open_log", "read_log", "run_meta", "unit_of"]
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
+__all__ = ["FORMAT", "GAP_COLUMNS", "VERSION", "LogWriter", "open_log", "read_log", "run_meta", "unit_of"]

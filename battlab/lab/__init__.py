@@ -4,8 +4,8 @@ Plans say what (:mod:`battlab.lab.plan`: a protocol plus run options); the run e
 (:mod:`battlab.lab.engine`, an explicit state machine) and emits documents (:mod:`battlab.lab.documents`) to the
 HDF5 log, the SQLite run catalog (:mod:`battlab.lab.catalog`) and the progress display. Step executors with
 runner-side CV regulation: :mod:`battlab.lab.steps`; limits files and the safety envelope:
-:mod:`battlab.lab.limits`, :mod:`battlab.lab.preflight`, :mod:`battlab.lab.safety`; starting and resuming:
-:mod:`battlab.lab.session`.
+:mod:`battlab.lab.limits`, :mod:`battlab.lab.preflight`, :mod:`battlab.lab.safety`; the instruments and their links:
+:mod:`battlab.lab.bench`; starting and resuming: :mod:`battlab.lab.session`.
 """
 
 from battlab.lab.catalog import Catalog, RunRecord

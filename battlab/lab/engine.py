@@ -30,7 +30,17 @@ from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 from battlab.lab.calls import InstrumentCalls
-from battlab.lab.documents import RunStart, RunStop, StepRecords, StepStart, StepStop, Subscriber, emit
+from battlab.lab.documents import (
+    Gap,
+    RunOrigin,
+    RunStart,
+    RunStop,
+    StepRecords,
+    StepStart,
+    StepStop,
+    Subscriber,
+    emit,
+)
 from battlab.lab.limits import Envelope
 from battlab.lab.logfile import COLUMNS
 from battlab.lab.plan import Plan, PlanEntry
@@ -49,6 +59,12 @@ T = TypeVar("T")
 CURRENT_RESOLUTION_A = 1e-5
 #: measured vs programmed current: beyond max(abs, rel × |I|) the output is suspected off
 MISMATCH_A, MISMATCH_REL = 0.05, 0.05
+#: consecutive samples further apart than this many sample periods are a gap in the data, marked in the log
+GAP_PERIODS = 1.5
+#: while waiting for the next sample longer than this / real s, the engine watches the instruments this often (the
+#: cycler's protection state, the chamber's alarms): a dead link, a trip or an alarm stops the run within about a
+#: second of it at 1x, not at the next sample or chamber read
+HEARTBEAT_S = 0.2
 
 
 @dataclass
@@ -107,6 +123,9 @@ class RunEngine:
         self._last: Sample | None = None
         self._T_amb_C = math.nan
         self._t0 = 0.0
+        #: a new run's origin is its first step's start, fixed at that step's first sample
+        self._origin_pending = config.t0_s is None
+        self._prev_test_time = config.last_test_time_s
         self._step_count = config.step_count0
         self._rows = config.row0
         self._q_Ah = config.net_capacity0_Ah
@@ -139,7 +158,7 @@ class RunEngine:
     def run(self) -> RunState:
         """Run to the end; returns the final state (COMPLETED, ABORTED or STOPPED). Never leaves the output on."""
         self._to(RunState.PREFLIGHT)
-        status, reason = RunState.COMPLETED, None
+        status, reason, unreachable = RunState.COMPLETED, None, ()
         try:
             self._preflight()
             self._to(RunState.RUNNING)
@@ -150,6 +169,8 @@ class RunEngine:
             self._flush_pending_stop()
         except Abort as exc:
             status, reason = RunState.ABORTED, str(exc)
+            if exc.device is not None:
+                unreachable = (exc.device,)
         except (StopRequested, KeyboardInterrupt):
             status, reason = RunState.STOPPED, self._stop_reason or "stopped by the operator (Ctrl-C)"
         except Exception as exc:  # a bug must still end in a safe state
@@ -162,7 +183,9 @@ class RunEngine:
         self.reason = reason
         log.error("run %s: %s", status.value, reason)
         self._to(RunState.STOPPING)
-        self.shutdown = safe_shutdown(self.cycler, self.chamber, self.config.safe_set_point_degC)
+        self.shutdown = safe_shutdown(
+            self.cycler, self.chamber, self.config.safe_set_point_degC, clock=self.clock, unreachable=unreachable
+        )
         self._output_on = False
         try:
             self._announce_current()
@@ -271,7 +294,7 @@ class RunEngine:
             except (InputError, ValueError) as exc:
                 self.stats.notes.append(f"SOC from the rest voltage: {exc}")
         meta.update(
-            t0_s=self._t0,
+            t0_s=None if self._origin_pending else self._t0,
             identities=self.identities,
             envelope=self.env.to_dict(),
             rest_voltage_V=self._rest_voltage,
@@ -322,6 +345,10 @@ class RunEngine:
                 s = self._measure(t_sched)
                 if first and t_applied is None:
                     ex.rebase(s.t)
+                if self._origin_pending:  # test time 0 is the first step's start: the log starts with the step
+                    self._t0 = ex.t0
+                    self._origin_pending = False
+                    self._emit("origin", RunOrigin(self._t0))
                 self._record(s, entry, count, ex)
                 if first:
                     first = False
@@ -333,9 +360,7 @@ class RunEngine:
                     raise StopRequested
                 self._housekeeping(s.t)
                 t_sched = ex.next_tick(s.t)
-                w0 = time.perf_counter()
-                self.clock.sleep(t_sched - self.clock.now())
-                self.stats.sleep_wall_s += time.perf_counter() - w0
+                self._wait_until(t_sched)
                 if self._stop_reason is not None:
                     raise StopRequested
                 i_new = ex.command(max(t_sched, self.clock.now()))
@@ -346,6 +371,34 @@ class RunEngine:
             self.stats.loop_wall_s += time.perf_counter() - loop0
         self._current = None
         self._pending_stop = (entry, count, ended, self._last.t if self._last else None, self._rows)
+
+    def _wait_until(self, t_sched: float) -> None:
+        """Sleep until ``t_sched`` (run clock); on a slow clock watch the instruments every ``HEARTBEAT_S`` real
+        seconds meanwhile (:meth:`_heartbeat`). Returns early on a stop request."""
+        step = HEARTBEAT_S * float(getattr(self.clock, "speed", 1.0))
+        while True:
+            remaining = t_sched - self.clock.now()
+            if remaining <= 1.5 * step or self._stop_reason is not None:
+                break
+            w0 = time.perf_counter()
+            self.clock.sleep(step)
+            self.stats.sleep_wall_s += time.perf_counter() - w0
+            self._heartbeat()
+        w0 = time.perf_counter()
+        self.clock.sleep(t_sched - self.clock.now())
+        self.stats.sleep_wall_s += time.perf_counter() - w0
+
+    def _heartbeat(self) -> None:
+        """Between samples: the cycler's protection state and the chamber's alarms (either link dead: an abort)."""
+        self.stats.heartbeats += 1
+        self._check_protection()
+        alarms = self.calls.call("chamber alarms", self.chamber.alarms)
+        if alarms:
+            raise Abort("chamber", f"{self.chamber_name}: chamber alarm: {', '.join(alarms)}")
+
+    @property
+    def chamber_name(self) -> str:
+        return str(getattr(self.chamber, "name", "chamber"))
 
     def _announce_current(self) -> None:
         """Close the previous step's record (completed) and open the current one's (documents in order)."""
@@ -396,8 +449,17 @@ class RunEngine:
         """Emit the sample (logged first), then check it against the envelope and the programmed current."""
         t = s.t
         T_C = s.T_K - 273.15 if s.T_K is not None else math.nan
+        test_time = t - self._t0
+        prev = self._prev_test_time
+        if prev is not None and test_time - prev > GAP_PERIODS * self.options.sample_period_s:
+            st = self.stats
+            st.gaps += 1
+            st.sum_gap_s += test_time - prev
+            st.max_gap_s = max(st.max_gap_s, test_time - prev)
+            self._emit("gap", Gap(self._rows, prev, test_time))
+        self._prev_test_time = test_time
         row = (
-            t - self._t0,
+            test_time,
             time.time(),
             ex.step_time(t),
             s.v,

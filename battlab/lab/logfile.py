@@ -5,6 +5,10 @@ writing (HDF5 marks it still open; only ``h5clear`` would reset that). :func:`re
 backup (``run.interrupted-1.h5``), writes a fresh log at the same path with the same columns, copies every
 recovered row into it and flushes, then the run continues appending. :func:`drop_backups` removes the backups
 once the log has been closed cleanly and holds at least their rows. Nothing is deleted before that.
+
+A copy that cannot be read at all (a runner killed as it created the log leaves HDF5's 48-byte superblock alone; a
+truncated or damaged file) is moved aside by :func:`set_aside_unreadable` to ``run.unreadable-1.h5``: kept for
+inspection, never taken for a backup again, never deleted.
 """
 
 from __future__ import annotations
@@ -47,19 +51,47 @@ COLUMNS: tuple[str, ...] = (
 
 
 def create(path: str | Path, columns: Sequence[str], meta: Mapping[str, Any]) -> LogWriter:
-    """A new run log (an existing file is an error: logs are never overwritten)."""
-    return open_log(path, list(columns), dict(meta), chunk_rows=4096)
+    """A new run log (an existing file is an error: logs are never overwritten); readable from its first flush, its
+    metadata completed until then (the run's origin is known only at the first step's start)."""
+    return open_log(path, list(columns), dict(meta), chunk_rows=4096, defer_swmr=True)
 
 
-def backups(path: str | Path) -> list[Path]:
-    """Backups of interrupted logs of ``path``, oldest first."""
+def backups(path: str | Path, kind: str = "interrupted") -> list[Path]:
+    """Backups of interrupted logs of ``path`` (``kind="unreadable"``: the copies set aside), oldest first."""
     path = Path(path)
     found = []
-    for p in path.parent.glob(f"{path.stem}.interrupted-*{path.suffix}"):
-        tag = p.name[len(path.stem) + len(".interrupted-") : len(p.name) - len(path.suffix)]
+    for p in path.parent.glob(f"{path.stem}.{kind}-*{path.suffix}"):
+        tag = p.name[len(path.stem) + len(kind) + 2 : len(p.name) - len(path.suffix)]
         if tag.isdigit():
             found.append((int(tag), p))
     return [p for _, p in sorted(found)]
+
+
+def _free_name(path: Path, kind: str) -> Path:
+    """``<stem>.<kind>-N<suffix>`` beside ``path`` with the first N not yet taken."""
+    n = len(backups(path, kind)) + 1
+    target = path.with_name(f"{path.stem}.{kind}-{n}{path.suffix}")
+    while target.exists():
+        n += 1
+        target = path.with_name(f"{path.stem}.{kind}-{n}{path.suffix}")
+    return target
+
+
+def set_aside_unreadable(path: str | Path) -> list[tuple[Path, Path, str]]:
+    """Move every copy of the log at ``path`` (itself and its backups) that cannot be read to
+    ``<stem>.unreadable-N<suffix>``; returns (old path, new path, why) for each."""
+    path = Path(path)
+    moved = []
+    for candidate in [*backups(path), path]:
+        if not candidate.is_file():
+            continue
+        try:
+            read_log(candidate)
+        except InputError as exc:
+            target = _free_name(path, "unreadable")
+            os.replace(candidate, target)
+            moved.append((candidate, target, str(exc)))
+    return moved
 
 
 def recover(path: str | Path) -> LoggedData | None:
@@ -86,11 +118,7 @@ def reopen(path: str | Path, meta: Mapping[str, Any]) -> tuple[LogWriter, Logged
     path = Path(path)
     old = recover(path)
     if path.exists():
-        n = len(backups(path)) + 1
-        target = path.with_name(f"{path.stem}.interrupted-{n}{path.suffix}")
-        while target.exists():
-            n += 1
-            target = path.with_name(f"{path.stem}.interrupted-{n}{path.suffix}")
+        target = _free_name(path, "interrupted")
         os.replace(path, target)
         log.info("resume: kept the interrupted log as %s", target)
     columns = list(COLUMNS)
@@ -99,6 +127,7 @@ def reopen(path: str | Path, meta: Mapping[str, Any]) -> tuple[LogWriter, Logged
     writer = create(path, columns, meta)
     if old is not None and len(old):
         writer.append(np.column_stack([old.columns[c] for c in columns]))
+        writer.mark_gaps(old.meta.get("gaps", []))
         writer.flush()
     return writer, old
 
@@ -132,4 +161,5 @@ __all__ = [
     "drop_backups",
     "recover",
     "reopen",
+    "set_aside_unreadable",
 ]

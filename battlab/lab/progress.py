@@ -95,7 +95,7 @@ def describe(summary: dict[str, Any]) -> str:
     s = summary.get("stats", {})
     return (
         f"{s.get('samples', 0):,} samples, {s.get('retries', 0)} retries, "
-        f"max lateness {s.get('max_late_s', 0.0):.2f} s, "
+        f"max lateness {s.get('max_late_s', 0.0):.2f} s, {s.get('gaps', 0)} gaps marked, "
         f"runner overhead {1e6 * s.get('overhead_per_sample_s', 0.0):.0f} us/sample"
     )
 

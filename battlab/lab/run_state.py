@@ -38,12 +38,14 @@ TRANSITIONS: dict[RunState, frozenset[RunState]] = {
 
 class Abort(Exception):
     """Ends the run: ``kind`` (``safety``, ``protection``, ``chamber``, ``communication``, ``instrument``,
-    ``preflight``, ``regulation``, ``internal``) and a message naming the cause."""
+    ``preflight``, ``regulation``, ``internal``) and a message naming the cause; ``device``: the instrument whose
+    link failed (a communication abort), which the safe shutdown then spares its retries."""
 
-    def __init__(self, kind: str, message: str) -> None:
+    def __init__(self, kind: str, message: str, *, device: Any = None) -> None:
         super().__init__(f"{kind}: {message}")
         self.kind = kind
         self.message = message
+        self.device = device
 
 
 class StopRequested(Exception):
@@ -60,6 +62,12 @@ class RunStats:
     late_samples: int = 0
     max_late_s: float = 0.0
     sum_late_s: float = 0.0
+    #: gaps in sampling longer than 1.5 sample periods (marked in the log), their longest and total / s
+    gaps: int = 0
+    max_gap_s: float = 0.0
+    sum_gap_s: float = 0.0
+    #: watches of the instruments while waiting for the next sample (slow clocks only)
+    heartbeats: int = 0
     loop_wall_s: float = 0.0
     io_wall_s: float = 0.0
     sleep_wall_s: float = 0.0
@@ -85,6 +93,10 @@ class RunStats:
             "late_samples": self.late_samples,
             "mean_late_s": self.sum_late_s / n,
             "max_late_s": self.max_late_s,
+            "gaps": self.gaps,
+            "max_gap_s": self.max_gap_s,
+            "sum_gap_s": self.sum_gap_s,
+            "heartbeats": self.heartbeats,
             "overhead_per_sample_s": self.overhead_per_sample_s,
             "io_per_sample_s": self.io_wall_s / n,
             "mean_set_to_sample_s": self.sum_set_to_sample_s / max(1, self.set_to_sample_n),

@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import Any
 
 from battlab.lab.limits import Envelope
 from battlab.lab.steps import Sample
+from drivers.clock import Clock
 from drivers.errors import InstrumentError
 from drivers.interfaces import Chamber, Cycler
 
@@ -67,12 +69,15 @@ def check_sample(s: Sample, env: Envelope) -> Violation | None:
 
 @dataclass
 class Shutdown:
-    """What :func:`safe_shutdown` did: output confirmed off, chamber set, and the problems met."""
+    """What :func:`safe_shutdown` did: output confirmed off, chamber set, and the problems met. Times on the run
+    clock / s: when the output-off command was sent and when the shutdown ended."""
 
     output_off_confirmed: bool = False
     output_off_t_s: float | None = None
     current_after_A: float | None = None
     chamber_set_point_degC: float | None = None
+    output_off_sent_t_s: float | None = None
+    t_s: float | None = None
     problems: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
@@ -81,37 +86,69 @@ class Shutdown:
             "output_off_t_s": self.output_off_t_s,
             "current_after_A": self.current_after_A,
             "chamber_set_point_degC": self.chamber_set_point_degC,
+            "output_off_sent_t_s": self.output_off_sent_t_s,
+            "t_s": self.t_s,
             "problems": list(self.problems),
         }
 
 
-def safe_shutdown(cycler: Cycler, chamber: Chamber | None, safe_set_point_degC: float | None) -> Shutdown:
-    """Output off, current 0, chamber to ``safe_set_point_degC`` (None: leave it); never raises."""
+def safe_shutdown(
+    cycler: Cycler,
+    chamber: Chamber | None,
+    safe_set_point_degC: float | None,
+    *,
+    clock: Clock | None = None,
+    unreachable: Collection[object] = (),
+) -> Shutdown:
+    """Output off, current 0, chamber to ``safe_set_point_degC`` (None: leave it); never raises.
+
+    An instrument in ``unreachable`` (its link just failed) is spared what would wait out its link's timeouts, so
+    the run stops at once: the cycler gets output off sent once (``send_off``: a write without waiting for a
+    confirmation, where the driver has it), nothing more; the chamber is left as it is.
+    """
     out = Shutdown()
-    for attempt in range(2):
+    now = clock.now if clock is not None else (lambda: None)
+    cycler_dead = any(d is cycler for d in unreachable)
+    if cycler_dead:
+        out.output_off_sent_t_s = now()
+        send_off = getattr(cycler, "send_off", None)
         try:
-            out.output_off_confirmed = bool(cycler.safe_off())
-        except Exception as exc:  # safe_off must not raise, but a foreign driver might
+            if callable(send_off):  # a write: on a dead link there is no confirmation to wait for
+                if not send_off():
+                    out.problems.append("output off could not be sent")
+            else:
+                out.output_off_confirmed = bool(cycler.safe_off())
+        except Exception as exc:  # a foreign driver might raise
             out.problems.append(f"output off: {exc}")
-        if out.output_off_confirmed or attempt:
-            break
-        try:  # an older error in the queue (e.g. the fault itself) reads as a rejection of 'output off': drain
-            for code, message in cycler.errors():
-                out.problems.append(f"cycler error queue: {code},{message}")
-        except Exception:
-            break
+    else:
+        out.output_off_sent_t_s = now()
+        for attempt in range(2):
+            try:
+                out.output_off_confirmed = bool(cycler.safe_off())
+            except Exception as exc:  # safe_off must not raise, but a foreign driver might
+                out.problems.append(f"output off: {exc}")
+            if out.output_off_confirmed or attempt:
+                break
+            try:  # an older error in the queue (e.g. the fault itself) reads as a rejection of 'output off': drain
+                for code, message in cycler.errors():
+                    out.problems.append(f"cycler error queue: {code},{message}")
+            except Exception:
+                break
     if not out.output_off_confirmed:
         out.problems.append("output off not confirmed by the cycler (its watchdog turns it off if the link is dead)")
-    try:
-        cycler.set_current(0.0)
-    except Exception as exc:
-        out.problems.append(f"current to 0: {exc}")
-    try:
-        m = cycler.measure()
-        out.output_off_t_s, out.current_after_A = m.t_s, m.current_A
-    except Exception as exc:
-        out.problems.append(f"measure after output off: {exc}")
-    if chamber is not None and safe_set_point_degC is not None:
+    if not cycler_dead:
+        try:
+            cycler.set_current(0.0)
+        except Exception as exc:
+            out.problems.append(f"current to 0: {exc}")
+        try:
+            m = cycler.measure()
+            out.output_off_t_s, out.current_after_A = m.t_s, m.current_A
+        except Exception as exc:
+            out.problems.append(f"measure after output off: {exc}")
+    if chamber is not None and any(d is chamber for d in unreachable):
+        out.problems.append("chamber unreachable: its set point is unchanged")
+    elif chamber is not None and safe_set_point_degC is not None:
         try:
             chamber.set_point(safe_set_point_degC)
             out.chamber_set_point_degC = safe_set_point_degC
@@ -119,6 +156,7 @@ def safe_shutdown(cycler: Cycler, chamber: Chamber | None, safe_set_point_degC: 
             out.problems.append(f"chamber to {safe_set_point_degC:g} degC: {exc}")
     for p in out.problems:
         log.error("safe shutdown: %s", p)
+    out.t_s = now()
     return out
 
 

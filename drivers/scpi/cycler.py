@@ -316,6 +316,16 @@ class ScpiCycler:
             log.error("%s: safe_off last-resort write failed: %s", self.name, exc)
         return False
 
+    def send_off(self) -> bool:
+        """Output off without waiting for a confirmation, for a link known to be dead: one write, never raises;
+        True if it was sent."""
+        try:
+            self.adapter.write(codec.command(self.dialect.prop("output").header, "0"))
+            return True
+        except (InstrumentError, OSError) as exc:
+            log.error("%s: output off could not be sent: %s", self.name, exc)
+            return False
+
     def close(self) -> None:
         self.adapter.close()
 

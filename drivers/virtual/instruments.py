@@ -148,6 +148,7 @@ class SimulatedCycler:
         self.i_true = 0.0
         self.T_cell_K = float("nan")
         self._dvdt = 0.0
+        self._dv = 0.0  # the true voltage's change over the last physics step / V
         #: cost of the physics: number of steps and the real seconds spent in them
         self.physics_steps = 0
         self.physics_wall_s = 0.0
@@ -163,7 +164,7 @@ class SimulatedCycler:
 
     def reset_cell(self, soc0: float, T_K: float) -> None:
         self.physics.reset(soc0, T_K)
-        self.v_true, self.T_cell_K, self._dvdt = self.physics.voltage, T_K, 0.0
+        self.v_true, self.T_cell_K, self._dvdt, self._dv = self.physics.voltage, T_K, 0.0, 0.0
 
     def note_io(self, t: float) -> None:
         """Any received message resets the watchdog."""
@@ -217,7 +218,8 @@ class SimulatedCycler:
                     self.push_error(-310, f"System error; cell model: {exc}"[:120])
                     self.t = t_next
                     continue
-                self._dvdt = (v - self.v_true) / dt if dt > 0 else 0.0
+                self._dv = v - self.v_true
+                self._dvdt = self._dv / dt if dt > 0 else 0.0
                 self.v_true, self.T_cell_K = v, T
             self.i_true = current
             self.t = t_next
@@ -242,7 +244,7 @@ class SimulatedCycler:
 
     # -- readings ---------------------------------------------------------------------------------
     def measure_voltage(self) -> float:
-        return self.noise.voltage(self.v_true, self.i_true, self._dvdt, self.rng)
+        return self.noise.voltage(self.v_true, self.i_true, self._dvdt, self.rng, max_slew_error_V=abs(self._dv))
 
     def measure_current(self) -> float:
         return self.noise.current(self.i_true, self.rng)

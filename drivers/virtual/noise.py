@@ -8,6 +8,7 @@ to the instrument's resolution (100 µV).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,10 +31,21 @@ class NoiseModel:
     temperature_white_K: float = 0.05
     temperature_quantum_K: float = 0.01
 
-    def voltage(self, v_true: float, current_A: float, dvdt_V_s: float, rng: np.random.Generator) -> float:
-        """A voltage reading / V."""
+    def voltage(
+        self,
+        v_true: float,
+        current_A: float,
+        dvdt_V_s: float,
+        rng: np.random.Generator,
+        max_slew_error_V: float = math.inf,
+    ) -> float:
+        """A voltage reading / V. ``max_slew_error_V``: the voltage's change over the last interval the slope was
+        taken on; a sample taken at a jittered instant reads between the voltages either side of it, so the jitter
+        error is clipped to that (right after a current step the slope over a microsecond is the whole jump)."""
         sigma = self.voltage_white_V + self.voltage_per_amp_V * abs(current_A)
-        v = v_true + sigma * rng.standard_normal() + dvdt_V_s * self.sample_jitter_s * rng.standard_normal()
+        slew = dvdt_V_s * self.sample_jitter_s * rng.standard_normal()
+        slew = min(max(slew, -max_slew_error_V), max_slew_error_V)
+        v = v_true + sigma * rng.standard_normal() + slew
         return _quantize(v, self.voltage_quantum_V)
 
     def current(self, i_true: float, rng: np.random.Generator) -> float:

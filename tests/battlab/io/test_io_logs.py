@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -86,6 +87,68 @@ def test_log_survives_a_killed_writer(tmp_path) -> None:
     data = read_log(path)
     assert len(data) == 30 and not data.meta["complete"]
     np.testing.assert_array_equal(data.t, np.arange(30.0))
+
+
+def _load_in_subprocess(paths: list, timeout_s: float = 60.0) -> list[dict]:
+    """``load_data`` of each path in another process (a hang in HDF5 holds the GIL, so a thread cannot time it out);
+    one JSON line per path: ``{"rows": n}`` or ``{"error": type, "message": text}``."""
+    code = textwrap.dedent("""
+        import json, sys
+        from battlab.io import load_data
+        for p in sys.argv[1:]:
+            try:
+                out = {"rows": len(load_data(p))}
+            except Exception as exc:
+                out = {"error": type(exc).__name__, "message": str(exc)}
+            print(json.dumps(out), flush=True)
+    """)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", code, *map(str, paths)], capture_output=True, text=True, timeout=timeout_s
+        )
+    except subprocess.TimeoutExpired as exc:
+        seen = (exc.stdout or b"").decode() if isinstance(exc.stdout, bytes) else exc.stdout or ""
+        pytest.fail(f"reading the logs hung: no answer within {timeout_s:g} s (answered so far: {seen!r})")
+    assert done.returncode == 0, done.stderr
+    return [json.loads(line) for line in done.stdout.splitlines()]
+
+
+def _truncated_copies(path, tmp_path) -> list:
+    """Copies of ``path`` cut to the superblock alone (48 bytes), to half, and one byte short."""
+    data = path.read_bytes()
+    out = []
+    for name, n in (("sb", 48), ("half", len(data) // 2), ("short", len(data) - 1)):
+        cut = tmp_path / f"{path.stem}-{name}.h5"
+        cut.write_bytes(data[:n])
+        out.append(cut)
+    return out
+
+
+def test_a_truncated_log_is_an_input_error_naming_the_file_not_a_hang(tmp_path) -> None:
+    closed = tmp_path / "closed.h5"
+    w = open_log(closed, COLS, {"cell": "x"}, chunk_rows=64)
+    for k in range(20):
+        w.append(_rows(k * 50, 50))
+        w.flush()
+    w.close({"status": "completed"})
+    killed = tmp_path / "killed.h5"
+    code = textwrap.dedent(f"""
+        import os, numpy as np
+        from battlab.io import open_log
+        w = open_log({str(killed)!r}, {COLS!r}, {{"cell": "x"}}, chunk_rows=64)
+        for k in range(20):
+            t = np.arange(k * 50, k * 50 + 50, dtype=float)
+            w.append(np.column_stack([t, t, t, t, t]))
+            w.flush()
+        os.kill(os.getpid(), 9)
+    """)
+    subprocess.run([sys.executable, "-c", code], timeout=60)
+    assert len(read_log(killed)) == 1000 and len(read_log(closed)) == 1000  # the intact files read
+    cuts = _truncated_copies(closed, tmp_path) + _truncated_copies(killed, tmp_path)
+    for cut, got in zip(cuts, _load_in_subprocess(cuts), strict=True):
+        assert got.get("error") == "InputError", (cut.name, got)
+        assert str(cut) in got["message"] and "\n" not in got["message"]
+        assert "truncated" in got["message"] or "not a readable" in got["message"], got["message"]
 
 
 def test_bdf_csv_round_trip_is_valid_bdf(tmp_path) -> None:

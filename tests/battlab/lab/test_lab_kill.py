@@ -34,7 +34,6 @@ PLAN = """
 name = "kill and resume"
 [run]
 stable_hold_s = 10
-flush_s = 0.2
 [[steps]]
 kind = "rest"
 until = "time >= 60"
@@ -87,6 +86,10 @@ def test_kill_9_mid_run_then_resume(tester: dict[str, str], home: Path, tmp_path
         str(out),
         "--quiet",
     ]
+    # the tester's clock, tracked here without further I/O (a query at the kill would feed its watchdog)
+    probe = ScpiCycler.open(tester["cycler"])
+    clock = probe.clock()
+    probe.close()
     runner = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         # kill it in the CCCV step (step 4), well after the start and before the end
@@ -100,6 +103,7 @@ def test_kill_9_mid_run_then_resume(tester: dict[str, str], home: Path, tmp_path
 
         assert wait_until(in_step_4, timeout_s=120.0, poll_s=0.05), runner.communicate(timeout=5)
         time.sleep(0.3)  # 60 virtual seconds more into the step
+        t_kill = clock.now()
         runner.send_signal(signal.SIGKILL)
         runner.wait(10)
     finally:
@@ -110,6 +114,11 @@ def test_kill_9_mid_run_then_resume(tester: dict[str, str], home: Path, tmp_path
     before = read_log(out)  # what survived the kill (SWMR): the rows flushed until then
     n = len(before)
     assert not before.meta["complete"] and n > 0 and before.columns["Step Index / 1"][-1] == 4
+    # test time lost at the kill: the run clock at the kill minus the last logged test time (the log is flushed
+    # every few seconds of test time, whatever the speed; a sample period of it is the sampling itself)
+    lost_s = (t_kill - before.meta["t0_s"]) - before.t[-1]
+    print(f"kill -9 at {SPEED:g}x: {lost_s:.2f} s of test time lost")
+    assert 0.0 <= lost_s <= 10.0
     (rec,) = Catalog().list()
     assert rec.shown_status == "interrupted" and rec.next_entry == 3
 
@@ -147,6 +156,9 @@ def test_kill_9_mid_run_then_resume(tester: dict[str, str], home: Path, tmp_path
     gap = t[n] - t[n - 1]
     assert gap > 60.0  # the outage (kill → resume) is the one long gap, at the mark
     assert np.sum(np.diff(t) > 60.0) == 1
+    # every gap in sampling is marked, the outage and any stall of either session (marks copied on resume)
+    assert [int(m[0]) for m in data.meta["gaps"]] == [int(k) + 1 for k in np.flatnonzero(np.diff(t) > 1.5)]
+    assert [n, t[n - 1], t[n]] in data.meta["gaps"]
     steps = data.meta["final"]["steps"]
     assert [(s["step_index"], s["status"]) for s in steps] == [
         (1, "completed"),

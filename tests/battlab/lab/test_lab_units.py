@@ -3,7 +3,10 @@ the run catalog and the resume copy of a log."""
 
 from __future__ import annotations
 
+import contextlib
 import math
+import socket
+import time
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +19,11 @@ from battlab.cell import Cell
 from battlab.io.logs import open_log, read_log
 from battlab.lab import logfile
 from battlab.lab.catalog import Catalog, RunLock
+from battlab.lab.documents import LogSink, RunStart
 from battlab.lab.limits import VIRTUAL_LIMITS, CellWindow, Envelope, InstrumentLimits
 from battlab.lab.plan import Plan
 from battlab.lab.preflight import check_plan
-from battlab.lab.safety import check_sample
+from battlab.lab.safety import check_sample, safe_shutdown
 from battlab.lab.steps import (
     CCCVExecutor,
     CCExecutor,
@@ -28,6 +32,8 @@ from battlab.lab.steps import (
     ResistanceEstimate,
     Sample,
 )
+from drivers.clock import RealClock
+from drivers.scpi.cycler import ScpiCycler
 from protocols import Profile
 from protocols.errors import InputError
 from protocols.protocol import CCCV, ConstantCurrent, ConstantVoltage, ProfileStep
@@ -247,6 +253,30 @@ def test_check_sample(sample: Sample, kind: str | None) -> None:
     assert (bad.kind if bad else None) == kind
 
 
+def test_the_safe_shutdown_of_a_dead_link_sends_output_off_without_waiting_for_it(tmp_path: Path) -> None:
+    """A hung tester (accepts, never answers): output off is written once, no reply is waited for (the link's
+    timeout here is 5 s), nothing else is asked of it, and the shutdown says so."""
+    received = bytearray()
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(1)
+        cycler = ScpiCycler.open(f"socket://127.0.0.1:{server.getsockname()[1]}", timeout_s=5.0, retries=0)
+        conn, _ = server.accept()
+        with conn:
+            conn.settimeout(0.5)
+            w0 = time.perf_counter()
+            out = safe_shutdown(cycler, None, None, clock=RealClock(), unreachable=(cycler,))
+            elapsed = time.perf_counter() - w0
+            with contextlib.suppress(TimeoutError):
+                while chunk := conn.recv(4096):
+                    received += chunk
+        cycler.close()
+    assert elapsed < 2.5  # a generous bound: waiting for the reply would take the 5 s timeout
+    assert bytes(received).splitlines() == [b"OUTP 0"]
+    assert not out.output_off_confirmed and out.output_off_sent_t_s is not None and out.t_s >= out.output_off_sent_t_s
+    assert out.current_after_A is None and any("not confirmed" in p for p in out.problems)
+
+
 # -- catalog --------------------------------------------------------------------------------------------------
 def test_catalog_records_runs_and_steps(catalog: Catalog, tmp_path: Path) -> None:
     log = tmp_path / "run.h5"
@@ -310,6 +340,41 @@ def test_recover_prefers_the_most_complete_copy(tmp_path: Path) -> None:
         w.close()
     data = logfile.recover(path)
     assert data is not None and len(data) == 5
+
+
+def test_unreadable_copies_of_a_log_are_set_aside_not_taken_for_backups(tmp_path: Path) -> None:
+    path = tmp_path / "run.h5"
+    w = open_log(path, logfile.COLUMNS, {})
+    w.append(np.ones((4, len(logfile.COLUMNS))))
+    w.close()
+    stub = path.read_bytes()[:48]  # HDF5's superblock alone: a runner killed as it created the log
+    (tmp_path / "run.interrupted-1.h5").write_bytes(stub)
+    (tmp_path / "run.unreadable-1.h5").write_bytes(b"older")
+    moved = logfile.set_aside_unreadable(path)
+    assert [(a.name, b.name) for a, b, _ in moved] == [("run.interrupted-1.h5", "run.unreadable-2.h5")]
+    assert "truncated: 48 bytes" in moved[0][2]
+    assert (tmp_path / "run.unreadable-2.h5").read_bytes() == stub and logfile.backups(path) == []
+    assert logfile.backups(path, "unreadable") == [tmp_path / "run.unreadable-1.h5", tmp_path / "run.unreadable-2.h5"]
+    data = logfile.recover(path)
+    assert data is not None and len(data) == 4
+    assert logfile.set_aside_unreadable(path) == []
+
+
+def test_log_sink_flushes_every_few_seconds_of_test_time_whatever_the_speed(tmp_path: Path) -> None:
+    """On a fast clock a real second is minutes of test time: the test-time bound flushes first."""
+    sink = LogSink(lambda columns, meta: logfile.create(tmp_path / "run.h5", columns, meta), flush_s=3600.0)
+    sink.start(RunStart(1, logfile.COLUMNS, {}))
+    flushed_at = []
+    for k in range(31):  # one sample per second of test time, all within a fraction of a real second
+        sink.event((float(k),) + (0.0,) * (len(logfile.COLUMNS) - 1))
+        try:
+            on_disk = len(read_log(tmp_path / "run.h5"))
+        except InputError:  # readable from its first flush on
+            on_disk = 0
+        if on_disk and (not flushed_at or on_disk > flushed_at[-1][1]):
+            flushed_at.append((k, on_disk))
+    assert flushed_at == [(5, 6), (10, 11), (15, 16), (20, 21), (25, 26), (30, 31)]
+    assert sink.flushes == 6
 
 
 # -- progress display -----------------------------------------------------------------------------------------

@@ -99,6 +99,23 @@ def test_noise_is_physical() -> None:
     assert NOISELESS.voltage(3.71234567, 5.0, 1.0, rng) == 3.71234567
 
 
+def test_a_reading_just_after_a_current_step_is_not_blown_up_by_the_jitter() -> None:
+    """A sample 0.1 ms after a 2.7 A step: the slope over that instant is the whole 81 mV jump divided by 0.1 ms; a
+    2 ms jitter reads at most the voltage before the step, not volts beyond it (seen at 1x: 4.29 V read at 3.44 V)."""
+    cell = EquivalentCircuitCell()
+    c = SimulatedCycler(cell, noise=NoiseModel(), rng=np.random.default_rng(3), max_step_s=1.0)
+    c.reset_cell(0.5, 298.15)
+    c.advance(10.0, 298.15)
+    before = c.v_true
+    c.set_current(-2.7)
+    c.set_output(True)
+    c.advance(10.0001, 298.15)
+    jump = before - c.v_true
+    assert 0.07 < jump < 0.1
+    readings = np.array([c.measure_voltage() for _ in range(2000)])
+    assert np.all(readings <= before + 1e-3) and np.all(readings >= c.v_true - jump - 1e-3)
+
+
 def make_cycler(**kw: object) -> SimulatedCycler:
     cell = EquivalentCircuitCell()
     c = SimulatedCycler(cell, noise=NOISELESS, rng=np.random.default_rng(0), max_step_s=1.0)
