@@ -70,3 +70,15 @@ def test_example_plan_reaches_its_profiles_at_their_start_soc() -> None:
     first = next(s for s in steps if isinstance(s, ProfileStep))
     assert soc == pytest.approx(first.profile.soc0)
     assert steps[0].kind.value == "cccv" and steps[0].voltage == pytest.approx(4.2)
+
+
+@pytest.mark.parametrize("path", PLANS, ids=lambda p: p.name)
+def test_example_plan_exports_to_a_tester_format(path: Path, tmp_path: Path) -> None:
+    """``battlab export`` takes a plan with a ``[run]`` table (the runner's options are not exported)."""
+    from click.testing import CliRunner
+
+    from battlab.cli import main
+
+    r = CliRunner().invoke(main, ["export", str(path), "--format", "maccor", "-o", str(tmp_path)])
+    assert r.exit_code == 0, r.output
+    assert any(p.suffix == ".000" for p in tmp_path.iterdir())

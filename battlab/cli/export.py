@@ -14,14 +14,17 @@ FORMATS = ", ".join(f.value for f in Format)
 
 
 def load_source(source: str, library_path: str | None) -> Profile | Protocol:
-    """A profile CSV, a protocol TOML/JSON, or a library profile id."""
+    """A profile CSV, a protocol or plan TOML/JSON (a plan's ``[run]`` table is the runner's, not exported), or a
+    library profile id."""
     path = Path(source)
     if path.is_file():
         suffix = path.suffix.lower()
         if suffix == ".csv":
             return Profile.from_csv(path, id=path.stem)
         if suffix in (".toml", ".json"):
-            return Protocol.load(path, library=library_path)
+            from battlab.io.plan import Plan
+
+            return Plan.load(path, library=library_path).protocol
         raise InputError(f"{path}: expected a profile .csv or a protocol/plan .toml or .json")
     if source.isdigit():
         lib = Library.load(library_path) if library_path else Library.build()

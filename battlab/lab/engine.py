@@ -21,7 +21,6 @@ has a clock, else the run clock's; ``Test Time / s`` counts from the run's origi
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import time
@@ -44,6 +43,7 @@ from battlab.lab.documents import (
 from battlab.lab.limits import Envelope
 from battlab.lab.logfile import COLUMNS
 from battlab.lab.plan import Plan, PlanEntry
+from battlab.lab.prepare import prepare_bench
 from battlab.lab.run_state import TRANSITIONS, Abort, RunState, RunStats, StopRequested
 from battlab.lab.safety import Shutdown, check_sample, safe_shutdown
 from battlab.lab.steps import ResistanceEstimate, Sample, executor_for
@@ -214,73 +214,10 @@ class RunEngine:
 
     # -- PREFLIGHT ---------------------------------------------------------------------------------------
     def _preflight(self) -> None:
-        cyc, cha, env = self.cycler, self.chamber, self.env
-        self.identities = {
-            "cycler": self.calls.call("cycler identity", cyc.identify),
-            "chamber": self.calls.call("chamber identity", cha.identify),
-        }
-        expected = self.config.expected_identities
-        if expected:
-            for role, idn in self.identities.items():
-                if role in expected and expected[role] != idn:
-                    raise Abort(
-                        "preflight",
-                        f"{role} identity changed since the run started: {expected[role]!r} then, {idn!r} now",
-                    )
-        self.calls.call("cycler reset", cyc.initialize)
-        with contextlib.suppress(InputError):
-            self.calls.call("clear protection", cyc.clear_protection)
-        errors = self.calls.call("cycler error queue", cyc.errors)
-        if errors:
-            self.stats.notes.append(f"cycler error queue at start: {errors}")
-        self.calls.call("current limits", cyc.set_current_limits, env.current_charge_max, env.current_discharge_max)
-        try:
-            self.calls.call("voltage limits", cyc.set_voltage_limits, env.voltage_min, env.voltage_max)
-        except InputError:
-            self.calls.call("voltage limit", cyc.set_voltage_limits, None, env.voltage_max)
-            self.stats.notes.append("no instrument low-voltage cut-off: the runner enforces voltage_min")
-        if hasattr(cyc, "set_temperature_limit"):
-            self.calls.optional("over-temperature trip", cyc.set_temperature_limit, env.temperature_max_K)
-        self.calls.optional("watchdog", cyc.set_watchdog, self.config.watchdog_s)
-        if self.options.sample_period_s > self.config.watchdog_s / 3:
-            raise Abort(
-                "preflight",
-                f"sample_period_s {self.options.sample_period_s:g} s is too long for the "
-                f"instrument watchdog of {self.config.watchdog_s:g} s (at most a third of it)",
-            )
-        m = self.calls.call("measure", cyc.measure)
-        self._has_T = m.temperature_K is not None
-        first = Sample(m.t_s if m.t_s is not None else self.clock.now(), m.voltage_V, m.current_A, m.temperature_K)
-        bad = check_sample(first, env)
-        if bad is not None:
-            raise Abort("preflight", f"cell at rest: {bad.message} (is the cell connected?)")
-        self._rest_voltage = first.v
-        alarms = self.calls.call("chamber alarms", cha.alarms)
-        if alarms:
-            raise Abort("preflight", f"chamber alarm(s) before the run: {alarms}")
-        o = self.options
-        self.calls.call("chamber set point", cha.set_point, o.ambient_degC)
-        poll = max(min(5.0, o.stable_hold_s / 6 if o.stable_hold_s > 0 else 5.0), o.sample_period_s)
-        try:
-            self._T_amb_C = self.calls.call(
-                "chamber stable",
-                lambda: cha.wait_stable(
-                    o.stable_tol_K, o.stable_timeout_s, self.clock, hold_s=o.stable_hold_s, poll_s=poll
-                ),
-            )
-        except Abort as exc:
-            raise Abort("preflight", exc.message) from None
-        now = self.clock.now()
-        t0, last_tt = self.config.t0_s, self.config.last_test_time_s
-        if t0 is None:
-            self._t0 = now
-        else:
-            self._t0 = t0
-            if last_tt is not None and now - t0 <= last_tt:
-                self._t0 = now - last_tt - self.options.sample_period_s
-                self.stats.notes.append(
-                    f"instrument clock restarted: test time re-anchored at {last_tt + o.sample_period_s:.3f} s"
-                )
+        ready = prepare_bench(self.calls, self.cycler, self.chamber, self.env, self.options, self.config, self.clock)
+        self.identities, self._has_T, self._rest_voltage = ready.identities, ready.has_T, ready.rest_voltage
+        self._T_amb_C, self._t0 = ready.ambient_stable_degC, ready.t0
+        self.stats.notes.extend(ready.notes)
 
     def _columns(self) -> tuple[str, ...]:
         return COLUMNS
