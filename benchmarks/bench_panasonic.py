@@ -28,6 +28,7 @@ from battlab.identify import fit as F
 from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
 from battlab.identify.experiments import experiments_from_data
 from battlab.identify.forward import ForwardModel
+from battlab.identify.validation import predict
 from battlab.io.data import load_data
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "panasonic-18650pf"
@@ -105,8 +106,8 @@ def main() -> None:
     for e in train:
         print(f"  {e.name:18s} {res.rmse_before_mV[e.name]:14.2f} {res.rmse_mV[e.name]:12.2f}   (fit data)")
     for e in hwfet:
-        before = F.predict(fm, cell, e)
-        after = F.predict(fm, res.cell, e)
+        before = predict(fm, cell, e)
+        after = predict(fm, res.cell, e)
         m = _until_90(e, _ah(e)).mask
         for label, sel in (("whole test", slice(None)), ("to 90 % of its charge", m)):
             rm = [float(1e3 * np.sqrt(np.nanmean((p[sel] - e.voltage[sel]) ** 2))) for p in (before, after)]

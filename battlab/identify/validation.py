@@ -14,9 +14,23 @@ from pathlib import Path
 import numpy as np
 
 from battlab.cell import Cell
-from battlab.identify.fit import Experiment, predict
+from battlab.identify.fit import Experiment
 from battlab.identify.forward import ForwardModel
 from protocols.profile import Profile
+
+
+def prediction(forward: ForwardModel, cell: Cell, exp: Experiment) -> tuple[np.ndarray, str | None]:
+    """The voltage of ``cell`` under an experiment, NaN where the simulation did not reach (it stopped early:
+    a held last value is not a prediction), and why it stopped (None: it covered the experiment)."""
+    out = forward.run(forward.theta_of(cell), exp.profile, exp.soc0, ambient=exp.ambient, T0=exp.T0)
+    pred = np.full(exp.voltage.size, np.nan)
+    pred[: out.voltage.size] = out.voltage
+    return pred, out.ended_by if out.voltage.size < exp.voltage.size else None
+
+
+def predict(forward: ForwardModel, cell: Cell, exp: Experiment) -> np.ndarray:
+    """:func:`prediction`'s voltage (NaN beyond an early stop)."""
+    return prediction(forward, cell, exp)[0]
 
 
 def discharge_profiles(

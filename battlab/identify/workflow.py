@@ -289,8 +289,8 @@ def validate(
     samples the prediction reached; each (cell, data set) is simulated on its own, so the order of the files
     does not matter. ``ambient`` [K]: for data that do not log it (see :data:`Ambient`)."""
     from battlab.identify.experiments import experiments_from_data
-    from battlab.identify.fit import prediction
     from battlab.identify.forward import ForwardModel
+    from battlab.identify.validation import prediction
 
     check_ambient_keys(data, ambient)
     loaded, warned = load_all(data, fix_sign=fix_sign)
