@@ -288,14 +288,14 @@ def bpx_file(draw: st.DrawFn, valid: dict[str, object]) -> bytes:
     if kind == "broken":
         text = json.dumps(doc)
         return text[: draw(st.integers(0, len(text) - 1))].encode()
-    paths = list(_leaf_paths(doc))
     for _ in range(draw(st.integers(1, 3))):
+        paths = list(_leaf_paths(doc))  # again: an earlier change may have removed a subtree
+        if not paths:
+            break
         path = draw(st.sampled_from(paths))
         parent = doc
         for key in path[:-1]:
             parent = parent[key]
-        if not isinstance(parent, dict) or path[-1] not in parent:
-            continue
         if kind == "delete":
             del parent[path[-1]]
         else:
@@ -431,5 +431,5 @@ def test_export_protocol_files(shared: dict[str, Path], spec: tuple[bytes, str])
 def test_library_show_ids(shared: dict[str, Path], profile_id: str) -> None:
     """``library show ID`` with out-of-range, negative, huge and non-numeric ids."""
     with dirs() as (_inp, out):
-        names = [profile_id.strip() or "PROFILE_ID", "PROFILE_ID", "profile_id", "profile id"]
+        names = [profile_id.strip() or "PROFILE_ID", "PROFILE_ID", "profile_id", "profile id", "with id"]
         run_cli(["library", "show", "--library", str(shared["library"]), "--", profile_id], out, names)
