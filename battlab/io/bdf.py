@@ -58,7 +58,8 @@ def read_bdf_csv(path: str | Path) -> LoggedData:
     try:
         df = pd.read_csv(path, sep=",", skip_blank_lines=True)
     except (ValueError, pd.errors.ParserError) as exc:
-        raise InputError(f"{path}: not a valid CSV table ({exc})") from None
+        # pandas' message ends in a newline: keep the error on one line
+        raise InputError(f"{path}: not a valid CSV table ({' '.join(str(exc).split())})") from None
     cols: dict[str, np.ndarray] = {}
     for name in df.columns:
         values = pd.to_numeric(df[name], errors="coerce").to_numpy(dtype=float)

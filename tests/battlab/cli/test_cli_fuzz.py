@@ -335,6 +335,7 @@ DATA_FILE = st.one_of(table_csv(DATA_COLUMNS, plausible_data), other_format(DATA
 @given(content=DATA_FILE, suffix=st.sampled_from([".csv", ".bdf.csv", ".mat", ".h5"]))
 @example(content=b"\x80", suffix=".csv")  # binary, not UTF-8
 @example(content=b"Test Time / s,Voltag", suffix=".mat")  # scipy's reader raised IndexError
+@example(content=b"Test Time / s,Voltage / V,Current / A\n0,3.9,0\n1,5,3.9,0\n", suffix=".csv")  # row too long
 def test_validate_data_files(shared: dict[str, Path], content: bytes, suffix: str) -> None:
     """``validate DATA --cell nca18650 --ambient 25`` with garbage, truncated or adversarial data files."""
     with dirs() as (inp, out):
