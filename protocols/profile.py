@@ -85,8 +85,16 @@ class Profile:
         if not path.is_file():
             raise InputError(f"{path}: no such profile file")
         import csv
+        import io
 
-        with path.open(newline="") as fh:
+        try:
+            # read whole so that a binary file (an HDF5 or .mat renamed .csv) fails here, as one error
+            text = path.read_text(encoding="utf-8-sig")
+        except UnicodeDecodeError:
+            raise InputError(f"{path}: not a text CSV (binary content); expected a profile CSV") from None
+        if "\0" in text:
+            raise InputError(f"{path}: not a text CSV (NUL bytes); expected a profile CSV")
+        with io.StringIO(text, newline="") as fh:
             reader = csv.reader(fh)
             try:
                 header = [h.strip() for h in next(reader)]

@@ -271,7 +271,10 @@ def read_table_file(path: Path, what: str) -> Any:
     naming ``path`` and ``what`` it should be (e.g. "protocol", "plan")."""
     if not path.is_file():
         raise InputError(f"{path}: no such {what} file")
-    text = path.read_text(encoding="utf-8")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file (binary content); expected a {what} .toml or .json") from None
     suffix = path.suffix.lower()
     try:
         if suffix == ".json":

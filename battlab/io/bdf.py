@@ -43,8 +43,11 @@ def read_bdf_csv(path: str | Path) -> LoggedData:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    with path.open(encoding="utf-8") as fh:
-        header = [h.strip() for h in fh.readline().strip().split(",")]
+    try:
+        with path.open(encoding="utf-8") as fh:
+            header = [h.strip() for h in fh.readline().strip().split(",")]
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text CSV (binary content); expected a BDF CSV") from None
     if not header or header == [""]:
         raise InputError(f"{path}: file is empty")
     missing = [c for c in REQUIRED if c not in header]
@@ -55,7 +58,8 @@ def read_bdf_csv(path: str | Path) -> LoggedData:
     try:
         df = pd.read_csv(path, sep=",", skip_blank_lines=True)
     except (ValueError, pd.errors.ParserError) as exc:
-        raise InputError(f"{path}: not a valid CSV table ({exc})") from None
+        # pandas' message ends in a newline: keep the error on one line
+        raise InputError(f"{path}: not a valid CSV table ({' '.join(str(exc).split())})") from None
     cols: dict[str, np.ndarray] = {}
     for name in df.columns:
         values = pd.to_numeric(df[name], errors="coerce").to_numpy(dtype=float)
@@ -71,8 +75,8 @@ def read_bdf_csv(path: str | Path) -> LoggedData:
     side = sidecar(path)
     if side.is_file():
         try:
-            meta = json.loads(side.read_text())
-        except json.JSONDecodeError as exc:
+            meta = json.loads(side.read_text(encoding="utf-8"))
+        except ValueError as exc:  # invalid JSON or not UTF-8 text
             raise InputError(f"{side}: not valid JSON ({exc})") from None
     name = path.name.removesuffix(".csv").removesuffix(".bdf")
     return LoggedData(name, cols, meta, str(path))

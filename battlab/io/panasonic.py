@@ -33,8 +33,8 @@ def read_panasonic(path: str | Path) -> LoggedData:
     path = Path(path)
     try:
         raw = scipy.io.loadmat(path, squeeze_me=True, struct_as_record=False)
-    except (ValueError, OSError, NotImplementedError, TypeError, scipy.io.matlab.MatReadError) as exc:
-        raise InputError(f"{path}: not a readable MATLAB .mat file ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - scipy's parser fails on a broken file in many ways (IndexError, ...)
+        raise InputError(f"{path}: not a readable MATLAB .mat file ({type(exc).__name__}: {exc})") from None
     if "meas" not in raw:
         raise InputError(f"{path}: no struct 'meas' (keys: {sorted(k for k in raw if not k.startswith('__'))})")
     meas = raw["meas"]
@@ -42,7 +42,10 @@ def read_panasonic(path: str | Path) -> LoggedData:
     missing = [f for f in ("Time", "Voltage", "Current") if f not in names]
     if missing:
         raise InputError(f"{path}: struct 'meas' lacks field(s) {missing}; has {names}")
-    cols = {col: np.asarray(getattr(meas, f), dtype=float).reshape(-1) for f, col in FIELDS.items() if f in names}
+    try:
+        cols = {col: np.asarray(getattr(meas, f), dtype=float).reshape(-1) for f, col in FIELDS.items() if f in names}
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{path}: struct 'meas' has a field that is not an array of numbers ({exc})") from None
     stamp = getattr(meas, "TimeStamp", None)
     start = str(np.atleast_1d(stamp)[0]) if stamp is not None and np.size(stamp) else ""
     meta = {
