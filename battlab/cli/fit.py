@@ -15,6 +15,15 @@ from typing import Any
 
 import click
 
+#: ``--ambient [FILE=]DEGC`` of fit and validate (see :func:`parse_ambients`)
+AMBIENT_OPTION = click.option(
+    "--ambient",
+    "ambients",
+    multiple=True,
+    metavar="[FILE=]DEGC",
+    help="Ambient temperature [degC] of data that do not log it: FILE=DEGC for one file (repeat), DEGC for all.",
+)
+
 
 @click.command("fit")
 @click.argument("data", nargs=-1, required=True, type=click.Path(dir_okay=False))
@@ -40,13 +49,7 @@ import click
 )
 @click.option("--rated-capacity", type=float, default=None, help="Set the cell's 1C capacity [Ah].")
 @click.option("--soc0", type=float, default=None, help="Start SOC of data that do not start at rest.")
-@click.option(
-    "--ambient",
-    "ambients",
-    multiple=True,
-    metavar="[FILE=]DEGC",
-    help="Ambient temperature [degC] of data that do not log it: FILE=DEGC for one file (repeat), DEGC for all.",
-)
+@AMBIENT_OPTION
 @click.option("--dt", type=float, default=1.0, show_default=True, help="Resample dynamic data to this step [s].")
 @click.option("--max-iter", type=int, default=40, show_default=True, help="Function evaluations per stage.")
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
@@ -169,13 +172,7 @@ def _print_estimates(r: Any) -> None:
 @click.argument("data", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--cell", "cells", multiple=True, required=True, help="A cell to score (repeat for several).")
 @click.option("--soc0", type=float, default=None, help="Start SOC of data that do not start at rest.")
-@click.option(
-    "--ambient",
-    "ambients",
-    multiple=True,
-    metavar="[FILE=]DEGC",
-    help="Ambient temperature [degC] of data that do not log it: FILE=DEGC for one file (repeat), DEGC for all.",
-)
+@AMBIENT_OPTION
 @click.option("--dt", type=float, default=1.0, show_default=True, help="Resample to this step [s].")
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
 @click.option(

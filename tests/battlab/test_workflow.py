@@ -9,10 +9,7 @@ import numpy as np
 import pytest
 
 import battlab
-from battlab import parameters as P
 from battlab import workflow
-from battlab.identify.forward import ForwardModel
-from battlab.identify.virtual import synthesize
 from battlab.io.bdf import write_bdf_csv
 from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE, LoggedData
 from protocols import Library
@@ -52,18 +49,8 @@ def test_design_returns_the_selection_it_writes(store: Path, tmp_path: Path) -> 
     assert rep.figure.is_file() and rep.n_candidates >= 1 and rep.solve_seconds > 0
 
 
-def _virtual_csv(tmp_path: Path, pid: int, seed: int) -> str:
-    cell = battlab.Cell.load("nca18650")
-    truth = cell.with_values(R_s_n=P.SPECS["R_s_n"].truth, R_s_p=P.SPECS["R_s_p"].truth)
-    prof = Library.build()[pid]
-    e = synthesize(ForwardModel(cell), truth, prof, prof.soc0, seed=seed)
-    cols = {TIME: prof.t, VOLTAGE: e.voltage, CURRENT: prof.current, AMBIENT: np.full(prof.t.size, 25.0)}
-    data = LoggedData(f"p{pid}", cols, {"soc0": prof.soc0})
-    return str(write_bdf_csv(data, tmp_path / f"p{pid}.bdf.csv"))
-
-
-def test_fit_and_validate_return_what_they_write(tmp_path: Path) -> None:
-    a, b = _virtual_csv(tmp_path, 19, 1), _virtual_csv(tmp_path, 37, 2)
+def test_fit_and_validate_return_what_they_write(tmp_path: Path, virtual_csv) -> None:
+    a, b = virtual_csv(tmp_path, 19, 1), virtual_csv(tmp_path, 37, 2)
     stages = []
     rep = workflow.fit([a], "nca18650", params="R_s_n,R_s_p", on_stage=lambda k, r: stages.append(k))
     assert stages == [1] and rep.summary["converged"] is True
@@ -85,8 +72,8 @@ def _early_stop_csv(tmp_path: Path) -> str:
     return str(write_bdf_csv(LoggedData("drain", cols, {"soc0": 0.5}), tmp_path / "drain.bdf.csv"))
 
 
-def test_validate_scores_only_what_it_predicts_whatever_the_file_order(tmp_path: Path) -> None:
-    a, b = _virtual_csv(tmp_path, 19, 3), _early_stop_csv(tmp_path)
+def test_validate_scores_only_what_it_predicts_whatever_the_file_order(tmp_path: Path, virtual_csv) -> None:
+    a, b = virtual_csv(tmp_path, 19, 3), _early_stop_csv(tmp_path)
     ab = workflow.validate([a, b], ["nca18650"])
     ba = workflow.validate([b, a], ["nca18650"])
     assert ab.table == ba.table and ab.coverage == ba.coverage

@@ -10,25 +10,13 @@ from click.testing import CliRunner
 import battlab
 from battlab import parameters as P
 from battlab.cli import main
-from battlab.identify.forward import ForwardModel
-from battlab.identify.virtual import synthesize
 from battlab.io.bdf import write_bdf_csv
-from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE, LoggedData
+from battlab.io.data import CURRENT, TIME, VOLTAGE, LoggedData
 from protocols.library import Library
 
 
-def _virtual_csv(tmp_path, pid: int, seed: int) -> str:
-    cell = battlab.Cell.load("nca18650")
-    truth = cell.with_values(R_s_n=P.SPECS["R_s_n"].truth, R_s_p=P.SPECS["R_s_p"].truth)
-    prof = Library.build()[pid]
-    e = synthesize(ForwardModel(cell), truth, prof, prof.soc0, seed=seed)
-    cols = {TIME: prof.t, VOLTAGE: e.voltage, CURRENT: prof.current, AMBIENT: np.full(prof.t.size, 25.0)}
-    data = LoggedData(f"p{pid}", cols, {"soc0": prof.soc0})
-    return str(write_bdf_csv(data, tmp_path / f"p{pid}.bdf.csv"))
-
-
-def test_fit_and_validate(tmp_path) -> None:
-    a, b = _virtual_csv(tmp_path, 19, 1), _virtual_csv(tmp_path, 37, 2)
+def test_fit_and_validate(tmp_path, virtual_csv) -> None:
+    a, b = virtual_csv(tmp_path, 19, 1), virtual_csv(tmp_path, 37, 2)
     out = tmp_path / "cell.bpx.json"
     r = CliRunner().invoke(main, ["fit", a, "--cell", "nca18650", "--params", "R_s_n,R_s_p", "-o", str(out)])
     assert r.exit_code == 0, r.output
@@ -64,13 +52,13 @@ def test_bad_input_is_one_line(tmp_path) -> None:
     assert "Voltage / V" in r.output and "sample 4" in r.output and "Traceback" not in r.output
 
 
-def test_fit_consumes_a_design_plan_summary(tmp_path) -> None:
+def test_fit_consumes_a_design_plan_summary(tmp_path, virtual_csv) -> None:
     """``--plan``: the groups (parameters, selected profiles) come from the design's summary.json beside it."""
     import tomli_w
 
     from protocols.concatenate import concatenate
 
-    a, b = _virtual_csv(tmp_path, 19, 3), _virtual_csv(tmp_path, 37, 4)
+    a, b = virtual_csv(tmp_path, 19, 3), virtual_csv(tmp_path, 37, 4)
     lib = Library.build()
     plan = tmp_path / "plan.toml"
     plan.write_text(tomli_w.dumps(concatenate([lib[19], lib[37]], name="plan").protocol.to_dict()))

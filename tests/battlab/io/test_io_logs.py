@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
@@ -89,30 +88,6 @@ def test_log_survives_a_killed_writer(tmp_path) -> None:
     np.testing.assert_array_equal(data.t, np.arange(30.0))
 
 
-def _load_in_subprocess(paths: list, timeout_s: float = 60.0) -> list[dict]:
-    """``load_data`` of each path in another process (a hang in HDF5 holds the GIL, so a thread cannot time it out);
-    one JSON line per path: ``{"rows": n}`` or ``{"error": type, "message": text}``."""
-    code = textwrap.dedent("""
-        import json, sys
-        from battlab.io import load_data
-        for p in sys.argv[1:]:
-            try:
-                out = {"rows": len(load_data(p))}
-            except Exception as exc:
-                out = {"error": type(exc).__name__, "message": str(exc)}
-            print(json.dumps(out), flush=True)
-    """)
-    try:
-        done = subprocess.run(
-            [sys.executable, "-c", code, *map(str, paths)], capture_output=True, text=True, timeout=timeout_s
-        )
-    except subprocess.TimeoutExpired as exc:
-        seen = (exc.stdout or b"").decode() if isinstance(exc.stdout, bytes) else exc.stdout or ""
-        pytest.fail(f"reading the logs hung: no answer within {timeout_s:g} s (answered so far: {seen!r})")
-    assert done.returncode == 0, done.stderr
-    return [json.loads(line) for line in done.stdout.splitlines()]
-
-
 def _truncated_copies(path, tmp_path) -> list:
     """Copies of ``path`` cut to the superblock alone (48 bytes), to half, and one byte short."""
     data = path.read_bytes()
@@ -124,7 +99,7 @@ def _truncated_copies(path, tmp_path) -> list:
     return out
 
 
-def test_a_truncated_log_is_an_input_error_naming_the_file_not_a_hang(tmp_path) -> None:
+def test_a_truncated_log_is_an_input_error_naming_the_file_not_a_hang(tmp_path, load_in_subprocess) -> None:
     closed = tmp_path / "closed.h5"
     w = open_log(closed, COLS, {"cell": "x"}, chunk_rows=64)
     for k in range(20):
@@ -145,7 +120,7 @@ def test_a_truncated_log_is_an_input_error_naming_the_file_not_a_hang(tmp_path) 
     subprocess.run([sys.executable, "-c", code], timeout=60)
     assert len(read_log(killed)) == 1000 and len(read_log(closed)) == 1000  # the intact files read
     cuts = _truncated_copies(closed, tmp_path) + _truncated_copies(killed, tmp_path)
-    for cut, got in zip(cuts, _load_in_subprocess(cuts), strict=True):
+    for cut, got in zip(cuts, load_in_subprocess(cuts), strict=True):
         assert got.get("error") == "InputError", (cut.name, got)
         assert str(cut) in got["message"] and "\n" not in got["message"]
         assert "truncated" in got["message"] or "not a readable" in got["message"], got["message"]

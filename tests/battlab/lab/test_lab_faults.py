@@ -15,7 +15,6 @@ import signal
 import socket
 import subprocess
 import sys
-import textwrap
 import threading
 import time
 from collections.abc import Callable
@@ -57,30 +56,9 @@ def run_on(lab: VirtualLab, plan_text: str, tmp_path: Path, name: str = "run.h5"
     return start_run(plan, settings, tmp_path / name, display=False, **kw)
 
 
-def load_in_subprocess(paths: list[Path], timeout_s: float = 60.0) -> list[dict[str, object]]:
-    """``battlab.io.data.load_data`` of each path in another process (a hang inside HDF5 holds the GIL, so only a
-    process can be timed out): per path ``{"rows": n}`` or ``{"error": type name, "message": text}``."""
-    code = textwrap.dedent("""
-        import json, sys
-        from battlab.io.data import load_data
-        for p in sys.argv[1:]:
-            try:
-                out = {"rows": len(load_data(p))}
-            except Exception as exc:
-                out = {"error": type(exc).__name__, "message": str(exc)}
-            print(json.dumps(out), flush=True)
-    """)
-    try:
-        done = subprocess.run(
-            [sys.executable, "-c", code, *map(str, paths)], capture_output=True, text=True, timeout=timeout_s
-        )
-    except subprocess.TimeoutExpired as exc:
-        pytest.fail(f"load_data hung: no answer within {timeout_s:g} s (answers so far: {exc.stdout!r})")
-    assert done.returncode == 0, done.stderr
-    return [json.loads(line) for line in done.stdout.splitlines()]
-
-
-def test_a_truncated_run_log_is_one_input_error_naming_the_file(make_lab, home: Path, tmp_path: Path) -> None:
+def test_a_truncated_run_log_is_one_input_error_naming_the_file(
+    make_lab, home: Path, tmp_path: Path, load_in_subprocess
+) -> None:
     result = run_on(make_lab(soc0=0.5), SHORT, tmp_path)
     assert result.status == "completed", result.reason
     data = result.log_path.read_bytes()

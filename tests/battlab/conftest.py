@@ -1,0 +1,68 @@
+"""Fixtures shared by battlab's tests: logged data from the virtual truth, and reading logs in another process."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+
+def _virtual_csv(tmp_path: Path, pid: int, seed: int) -> str:
+    """Library profile ``pid`` on the virtual truth (R_s of both electrodes moved) with seeded noise, logged at
+    25 degC as a BDF CSV; its path."""
+    import battlab
+    from battlab import parameters as P
+    from battlab.identify.forward import ForwardModel
+    from battlab.identify.virtual import synthesize
+    from battlab.io.bdf import write_bdf_csv
+    from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE, LoggedData
+    from protocols import Library
+
+    cell = battlab.Cell.load("nca18650")
+    truth = cell.with_values(R_s_n=P.SPECS["R_s_n"].truth, R_s_p=P.SPECS["R_s_p"].truth)
+    prof = Library.build()[pid]
+    e = synthesize(ForwardModel(cell), truth, prof, prof.soc0, seed=seed)
+    cols = {TIME: prof.t, VOLTAGE: e.voltage, CURRENT: prof.current, AMBIENT: np.full(prof.t.size, 25.0)}
+    data = LoggedData(f"p{pid}", cols, {"soc0": prof.soc0})
+    return str(write_bdf_csv(data, tmp_path / f"p{pid}.bdf.csv"))
+
+
+@pytest.fixture
+def virtual_csv() -> Callable[[Path, int, int], str]:
+    """``virtual_csv(tmp_path, pid, seed)``: see :func:`_virtual_csv`."""
+    return _virtual_csv
+
+
+def _load_in_subprocess(paths: list[Path], timeout_s: float = 60.0) -> list[dict[str, object]]:
+    """``battlab.io.data.load_data`` of each path in another process (a hang inside HDF5 holds the GIL, so only a
+    process can be timed out): per path ``{"rows": n}`` or ``{"error": type name, "message": text}``."""
+    code = textwrap.dedent("""
+        import json, sys
+        from battlab.io.data import load_data
+        for p in sys.argv[1:]:
+            try:
+                out = {"rows": len(load_data(p))}
+            except Exception as exc:
+                out = {"error": type(exc).__name__, "message": str(exc)}
+            print(json.dumps(out), flush=True)
+    """)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", code, *map(str, paths)], capture_output=True, text=True, timeout=timeout_s
+        )
+    except subprocess.TimeoutExpired as exc:
+        pytest.fail(f"load_data hung: no answer within {timeout_s:g} s (answers so far: {exc.stdout!r})")
+    assert done.returncode == 0, done.stderr
+    return [json.loads(line) for line in done.stdout.splitlines()]
+
+
+@pytest.fixture
+def load_in_subprocess() -> Callable[..., list[dict[str, object]]]:
+    """``load_in_subprocess(paths, timeout_s=60)``: see :func:`_load_in_subprocess`."""
+    return _load_in_subprocess
