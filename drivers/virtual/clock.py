@@ -19,6 +19,11 @@ class VirtualClock:
         self._t0 = float(t0_s)
         self._m0 = time.monotonic()
 
+    def restart(self, t0_s: float = 0.0) -> None:
+        """Start counting again from ``t0_s`` now (the lab restarts its clock when it starts serving)."""
+        self._t0 = float(t0_s)
+        self._m0 = time.monotonic()
+
     def now(self) -> float:
         """Virtual time / s."""
         return self._t0 + (time.monotonic() - self._m0) * self.speed

@@ -124,6 +124,11 @@ class VirtualLab:
         except BaseException:
             self.stop()
             raise
+        # Time starts when the instruments are served: building the cell (compiling a model, analysing its
+        # first state) and opening sockets take real time that would otherwise be owed to the physics as
+        # hundreds of virtual seconds, computed under the lock while the first replies wait.
+        with self.lock:
+            self.clock.restart(self._t)
         self._ticker = threading.Thread(target=self._tick_loop, name="virtual-lab-ticker", daemon=True)
         self._ticker.start()
         self.started = True
