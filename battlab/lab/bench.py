@@ -24,6 +24,9 @@ VIRTUAL = "virtual"
 #: ``timeout=`` option wins)
 LINK_TIMEOUT_VIRTUAL_S = 15.0
 REAL_LINK_TIMEOUT_S = 0.2
+#: the shortest link timeout / real s: a loaded host (a few processes per core) delays a loopback reply by tens of
+#: milliseconds, which must cost a marked gap in the log, not the run (15 virtual s at 1000x would be 15 ms)
+MIN_LINK_TIMEOUT_S = 0.05
 #: the drivers' own retries of a failed exchange during a run: none for the cycler (the engine retries, within its
 #: time budget: :mod:`battlab.lab.calls`), one for the chamber (a Modbus transaction lost now and then)
 CYCLER_RETRIES, CHAMBER_RETRIES = 0, 1
@@ -138,7 +141,7 @@ def open_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambie
         except (InstrumentError, OSError) as exc:
             raise InputError(f"cycler {settings.cycler_url}: does not answer: {_detail(exc)}") from None
         speed = float(getattr(clock, "speed", 1.0))
-        link_timeout = min(REAL_LINK_TIMEOUT_S, max(0.005, LINK_TIMEOUT_VIRTUAL_S / speed))
+        link_timeout = min(REAL_LINK_TIMEOUT_S, max(MIN_LINK_TIMEOUT_S, LINK_TIMEOUT_VIRTUAL_S / speed))
         adapter = getattr(cycler, "adapter", None)
         if not _has_timeout(cycler_url) and adapter is not None and hasattr(adapter, "timeout_s"):
             adapter.timeout_s = link_timeout  # the link timeout follows the instrument's clock
@@ -203,6 +206,7 @@ __all__ = [
     "CHAMBER_RETRIES",
     "CYCLER_RETRIES",
     "LINK_TIMEOUT_VIRTUAL_S",
+    "MIN_LINK_TIMEOUT_S",
     "REAL_LINK_TIMEOUT_S",
     "RunSettings",
     "VIRTUAL",

@@ -18,7 +18,7 @@ of steps), so Python touches the loop only once per chunk.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import casadi as ca
 import numpy as np
@@ -200,7 +200,7 @@ def run(
     lay = model.layout
     nx, ns, N = lay.nx, comp.ns, comp.chunk
     cell = model.cell
-    sch = schedule(t, I_dis, float(cell["Q_nom"]), settings)
+    sch = schedule(t, I_dis, float(cell["Q_nom"]), replace(settings, across_samples=False))  # steps end at samples
     h, w, cur, sample_step = (a.copy() for a in (sch.h, sch.w, sch.current, sch.sample_step))
     n_samp = len(t)
     V, T1, T2, smin, smax = (np.full(n_samp, np.nan) for _ in range(5))

@@ -13,7 +13,10 @@ from battlab import parameters
 from battlab.cell import Cell
 from battlab.model import solver
 from battlab.model.mesh import Mesh
+from battlab.model.native import SamplePlan, StepPlan
 from protocols.errors import InputError
+
+_EMPTY = np.zeros(0)
 
 
 class LiveCell:
@@ -86,25 +89,37 @@ class LiveCell:
         if not hs:  # dt == 0: re-solve the algebraic state for the new current
             hs, ws = [0.0], [0.0]
         n = len(hs)
-        out_idx = np.full(n, -1, dtype=np.int32)
-        out_idx[-1] = 0
+        t_end = np.cumsum(hs)
+        t_end[-1] = dt  # the sample ends the last step exactly
+        emit = np.zeros(n, dtype=np.int32)
+        emit[-1] = 1
+        plan = StepPlan.of(hs, ws, np.full(n, I_dis), np.full(n, ambient), t_end, emit)
         out = np.full((1, 5), np.nan)
         dummy = np.zeros((1, 1))
         lim = np.array([-np.inf, np.inf, np.inf])
-        args = (
-            np.array(hs),
-            np.array(ws),
-            np.full(n, I_dis),
-            np.full(n, ambient),
-            out_idx,
-            np.full(n, I_dis),
-            self._theta,
-            np.zeros(0, dtype=np.int32),
-        )
+        none = np.zeros(0, dtype=np.int32)
         y0, xp0 = self._y.copy(), self._xp.copy()
-        done, code, _ = self._stepper.run(
-            self._pivots, *args, self._y, self._xp, np.zeros(0), np.zeros(0), out, dummy, dummy, lim
-        )
+
+        def attempt() -> tuple[int, int]:
+            samples = SamplePlan.of([dt], [I_dis])
+            done, code, _ = self._stepper.run(
+                self._pivots,
+                plan,
+                samples,
+                self._theta,
+                none,
+                self._y,
+                self._xp,
+                _EMPTY,
+                _EMPTY,
+                out,
+                dummy,
+                dummy,
+                lim,
+            )
+            return done, code
+
+        done, code = attempt()
         if code in (-2, -5):  # a pivot vanished: a new pivot order at this state, then retry from the start
             self._y, self._xp = y0, xp0
             if code == -5:
@@ -116,9 +131,7 @@ class LiveCell:
                 u = np.array([max(hs[-1], 1e-3), 0.0, I_dis, ambient])
                 step = self._stepper.analyse_at(self._y, self._y[: len(xp0)], self._xp, u, self._theta)
                 self._pivots = self._pivots.replace(step=step)
-            done, code, _ = self._stepper.run(
-                self._pivots, *args, self._y, self._xp, np.zeros(0), np.zeros(0), out, dummy, dummy, lim
-            )
+            done, code = attempt()
         if code < 0:
             raise RuntimeError(f"cell model: step did not converge at t = {self.t + sum(hs[:done]):.3f} s")
         self._I_dis = I_dis

@@ -318,12 +318,8 @@ class NativeStepper:
     def run(
         self,
         pivots: PivotSet,
-        h: np.ndarray,
-        w: np.ndarray,
-        current: np.ndarray,
-        T_amb: np.ndarray,
-        out_idx: np.ndarray,
-        out_I: np.ndarray,
+        steps: StepPlan,
+        samples: SamplePlan,
         th: np.ndarray,
         sel: np.ndarray,
         y: np.ndarray,
@@ -337,30 +333,37 @@ class NativeStepper:
         tol: float = 1e-9,
         maxit: int = 20,
     ) -> tuple[int, int, int]:
-        """Advance in place with the pivot programs ``pivots``; returns (steps done, code, Newton iterations);
-        code 0 done, 1 a sample broke a limit, -1 Newton failed, -2 a pivot of ``pivots.step`` vanished, -5 one of
+        """Advance in place with the pivot programs ``pivots`` over ``steps``, writing ``samples`` from
+        ``samples.next`` on (advanced in place); returns (steps done, code, Newton iterations); code 0 done, 1 sample
+        ``samples.next`` broke a limit, -1 Newton failed, -2 a pivot of ``pivots.step`` vanished, -5 one of
         ``pivots.zero`` (the state is then that before the failed step), -4 no right-limit solution."""
-        lay = self.model.layout
         ns = len(sel)
         d = lambda x: np.ascontiguousarray(x, dtype=np.float64)  # noqa: E731
-        i = lambda x: np.ascontiguousarray(x, dtype=np.int32)  # noqa: E731
-        h, w, current, T_amb, out_I, th = map(d, (h, w, current, T_amb, out_I, th))
-        out_idx, sel = i(out_idx), i(sel)
-        limits = d(limits)
-        Sy = np.zeros(lay.ny * max(ns, 1))
+        th, limits = d(th), d(limits)
+        sel = np.ascontiguousarray(sel, dtype=np.int32)
+        Sy = np.zeros(self.model.layout.ny * max(ns, 1))
         code = _INT(0)
         iters = _INT(0)
+        m = _INT(samples.next)
         pd = lambda x: x.ctypes.data_as(_PD)  # noqa: E731
+        dense = samples.yhist is not None
         done = self.lib.bl_run(
             ctypes.byref(pivots.step.problem),
             ctypes.byref(pivots.zero.problem),
-            _INT(len(h)),
-            pd(h),
-            pd(w),
-            pd(current),
-            pd(T_amb),
-            out_idx.ctypes.data_as(_PI),
-            pd(out_I),
+            _INT(steps.h.size),
+            pd(steps.h),
+            pd(steps.w),
+            pd(steps.current),
+            pd(steps.T_amb),
+            pd(steps.t_end),
+            steps.emit.ctypes.data_as(_PI),
+            _INT(samples.t.size),
+            pd(samples.t),
+            pd(samples.current),
+            ctypes.byref(m),
+            _INT(int(dense)),
+            pd(samples.yhist) if dense else None,
+            pd(samples.Shist) if dense and ns else None,
             pd(th),
             sel.ctypes.data_as(_PI),
             _INT(ns),
@@ -378,7 +381,51 @@ class NativeStepper:
             ctypes.byref(code),
             ctypes.byref(iters),
         )
+        samples.next = int(m.value)
         return int(done), int(code.value), int(iters.value)
+
+
+@dataclass(frozen=True)
+class StepPlan:
+    """The steps of a ``bl_run`` call: h [s], ω, I_dis [A], T_amb [K], end time [s] and whether samples may be
+    written after each (contiguous arrays, as the C code reads them)."""
+
+    h: np.ndarray
+    w: np.ndarray
+    current: np.ndarray
+    T_amb: np.ndarray
+    t_end: np.ndarray
+    emit: np.ndarray
+
+    @classmethod
+    def of(cls, h, w, current, T_amb, t_end, emit) -> StepPlan:  # noqa: ANN001
+        d = lambda x: np.ascontiguousarray(x, dtype=np.float64)  # noqa: E731
+        return cls(d(h), d(w), d(current), d(T_amb), d(t_end), np.ascontiguousarray(emit, dtype=np.int32))
+
+    def __getitem__(self, sl: slice) -> StepPlan:
+        return StepPlan(
+            *(np.ascontiguousarray(a[sl]) for a in (self.h, self.w, self.current, self.T_amb, self.t_end, self.emit))
+        )
+
+
+@dataclass
+class SamplePlan:
+    """The samples of a run: times [s] (on the steps' clock), the current that starts at each [A], the next one to
+    write, and, for steps across samples, the interpolation history the C code keeps between calls (the starts of
+    the current and the previous step: 2 states and 2 × n × ns sensitivities)."""
+
+    t: np.ndarray
+    current: np.ndarray
+    next: int = 0
+    yhist: np.ndarray | None = None
+    Shist: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, t, current, n: int = 0, ns: int = 0, dense: bool = False) -> SamplePlan:  # noqa: ANN001
+        d = lambda x: np.ascontiguousarray(x, dtype=np.float64)  # noqa: E731
+        return cls(
+            d(t), d(current), 0, np.zeros(2 * n) if dense else None, np.zeros(2 * n * ns) if dense and ns else None
+        )
 
 
 def _machine_tag() -> str:

@@ -1,4 +1,6 @@
-"""The step schedule: steps aligned with every current change and sample, sizes limited where the current jumps."""
+"""The step schedule: steps end at every current change (and, unless they may cross them, at every sample); sizes
+restart small where the current jumps and grow geometrically up to ``dt_max``. Step sizes depend on the profile and
+the settings only, never on θ̄."""
 
 from __future__ import annotations
 
@@ -14,12 +16,14 @@ from battlab.model.state import Settings
 
 @dataclass(frozen=True)
 class Schedule:
-    """Steps (h [s], ω, I_dis [A]) and, per sample k ≥ 1, the index of the step that ends at t_k."""
+    """Steps (h [s], ω, I_dis [A], end time t_end [s] from t_0) and, per sample k ≥ 1, the index of the step that
+    ends at t_k (aligned schedules) or contains it (steps across samples)."""
 
     h: np.ndarray
     w: np.ndarray
     current: np.ndarray
     sample_step: np.ndarray
+    t_end: np.ndarray
 
 
 def next_step(remaining: float, h_allowed: float) -> float:
@@ -46,19 +50,84 @@ def split_step(h: np.ndarray, w: np.ndarray, cur: np.ndarray, pos: int) -> tuple
     return h, w, cur
 
 
+def split_ends(t_end: np.ndarray, h: np.ndarray, pos: int) -> np.ndarray:
+    """The end times after :func:`split_step` at ``pos`` (``h``: the step sizes before the split); the last part
+    ends exactly where the failed step did."""
+    start = t_end[pos] - h[pos]
+    parts = start + h[pos] * np.array([0.125, 0.25, 0.5])
+    return np.concatenate([t_end[:pos], parts, t_end[pos:]])
+
+
 def schedule(t: np.ndarray, I_dis: np.ndarray, i_1c: float, s: Settings) -> Schedule:
-    """Steps aligned with every sample, so a current step is never straddled (zero-order hold)."""
+    """The step plan of a profile (zero-order hold: a step never straddles a change of the current)."""
+    if s.across_samples:
+        return _across_samples(t, I_dis, i_1c, s)
+    return _aligned(t, I_dis, i_1c, s)
+
+
+def _restarts(I_dis: np.ndarray, i_1c: float, s: Settings) -> np.ndarray:
+    """Per sample k: whether the current that starts at t_k restarts the scheme (k = 0 always)."""
+    jump = np.abs(np.diff(I_dis)) > max(s.refine_rate * i_1c, 1e-12 * i_1c)
+    return np.concatenate([[True], jump])
+
+
+def _across_samples(t: np.ndarray, I_dis: np.ndarray, i_1c: float, s: Settings) -> Schedule:
+    """Steps that end only where the current changes (and at the last sample); samples in between lie inside
+    steps."""
+    restart = _restarts(I_dis, i_1c, s)
+    n = len(t) - 1
+    change = np.flatnonzero(I_dis[1:n] != I_dis[: n - 1]) + 1  # samples where the current changes
+    bounds = np.concatenate([[0], change, [n]])
+    hs: list[float] = []
+    ws: list[float] = []
+    cs: list[float] = []
+    ends: list[float] = []
+    h_allowed = s.dt_first
+    h_prev = 0.0
+    t0 = float(t[0])
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        first = bool(restart[a])
+        if first:
+            h_allowed = s.dt_first
+        t_a, t_b = float(t[a]) - t0, float(t[b]) - t0
+        done = 0.0
+        remaining = t_b - t_a
+        while remaining > 1e-12 * max(1.0, t_b):
+            h = next_step(remaining, h_allowed)
+            hs.append(h)
+            ws.append(0.0 if first or h_prev == 0.0 else h / h_prev)
+            cs.append(float(I_dis[a]))
+            first = False
+            remaining -= h
+            done += h
+            ends.append(t_a + done)
+            h_prev = h
+            h_allowed = min(h * s.growth, s.dt_max)
+        if ends:
+            ends[-1] = t_b  # exactly at the change, where the right limit is taken
+    t_end = np.array(ends)
+    # the step containing each sample k >= 1: the first whose end is at or after t_k
+    tol = 1e-9 * np.maximum(1.0, np.abs(t[1:] - t0))
+    sample_step = np.searchsorted(t_end, t[1:] - t0 - tol, side="left")
+    return Schedule(np.array(hs), np.array(ws), np.array(cs), sample_step.astype(int), t_end)
+
+
+def _aligned(t: np.ndarray, I_dis: np.ndarray, i_1c: float, s: Settings) -> Schedule:
+    """Steps aligned with every sample."""
     hs: list[float] = []
     ws: list[float] = []
     cs: list[float] = []
     ends: list[int] = []
+    t_end: list[float] = []
     h_allowed = s.dt_first
     h_prev = 0.0
+    t0 = float(t[0])
     for k in range(len(t) - 1):
         restart = k == 0 or abs(I_dis[k] - I_dis[k - 1]) > max(s.refine_rate * i_1c, 1e-12 * i_1c)
         if restart:
             h_allowed = s.dt_first
         remaining = float(t[k + 1] - t[k])
+        done = 0.0
         while remaining > 1e-12 * max(1.0, float(t[k + 1])):
             h = next_step(remaining, h_allowed)
             w = 0.0 if restart or h_prev == 0.0 else h / h_prev
@@ -67,7 +136,10 @@ def schedule(t: np.ndarray, I_dis: np.ndarray, i_1c: float, s: Settings) -> Sche
             cs.append(float(I_dis[k]))
             restart = False
             remaining -= h
+            done += h
+            t_end.append(float(t[k]) - t0 + done)
             h_prev = h
             h_allowed = min(h * s.growth, s.dt_max)
+        t_end[-1] = float(t[k + 1]) - t0
         ends.append(len(hs) - 1)
-    return Schedule(np.array(hs), np.array(ws), np.array(cs), np.array(ends, dtype=int))
+    return Schedule(np.array(hs), np.array(ws), np.array(cs), np.array(ends, dtype=int), np.array(t_end))

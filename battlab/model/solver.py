@@ -26,7 +26,8 @@ from battlab.cell import Cell
 from battlab.model.casadi_run import Compiled, compile_model, run
 from battlab.model.dfn import C_SCALE, DFN
 from battlab.model.mesh import Mesh
-from battlab.model.schedule import Schedule, next_step, schedule, split_step
+from battlab.model.native import SamplePlan, StepPlan
+from battlab.model.schedule import Schedule, next_step, schedule, split_ends, split_step
 from battlab.model.state import (
     NEWTON_FAIL,
     NP,
@@ -114,11 +115,10 @@ def run_native(
     h = np.concatenate([np.zeros(n0), sch.h])
     w = np.concatenate([np.zeros(n0), sch.w])
     cur = np.concatenate([ramp, sch.current])
-    out_idx = np.full(h.size, -1, dtype=np.int32)
-    out_I = np.zeros(h.size)
-    out_idx[n0 - 1], out_I[n0 - 1] = 0, I_dis[0]
-    out_idx[sch.sample_step + n0] = np.arange(1, n_samp)
-    out_I[sch.sample_step + n0] = I_dis[1:]
+    t_end = np.concatenate([np.zeros(n0), sch.t_end])
+    emit = np.concatenate([np.zeros(n0 - 1), np.ones(sch.h.size + 1)])
+    dense = bool(np.any(sch.t_end[sch.sample_step] > t[1:] - t[0] + 1e-9 * np.maximum(1.0, t[1:] - t[0])))
+    samples = SamplePlan.of(t - t[0], I_dis, lay.ny, ns, dense)  # dense: some sample lies inside a step
     out = np.full((n_samp, 5), np.nan)
     outdV = np.full((n_samp, max(ns, 1)), np.nan)
     outdT2 = np.full((n_samp, max(ns, 1)), np.nan)
@@ -136,49 +136,34 @@ def run_native(
     Sp = S.copy()
     lim = np.array([limits["V_min"], limits["V_max"], limits["T_max"]])
     pivots = stepper.base_pivots(th)
+    sel_arr = np.array(sel, dtype=np.int32)
     pos = 0
     ended_by = None
-    kept_beyond = True  # whether the sample that ended the run was written (then it is dropped)
     n_iter = 0
     reanalysed: tuple[int, int] = (-1, 0)
+    plan = StepPlan.of(h, w, cur, np.full(h.size, T_amb), t_end, emit)
     while pos < h.size:
-        sl_ = slice(pos, None)
-        done, code, it = stepper.run(
-            pivots,
-            h[sl_],
-            w[sl_],
-            cur[sl_],
-            np.full(h.size - pos, T_amb),
-            out_idx[sl_],
-            out_I[sl_],
-            th,
-            np.array(sel, dtype=np.int32),
-            y,
-            xp,
-            S,
-            Sp,
-            out,
-            outdV,
-            outdT2,
-            lim,
-        )
+        done, code, it = stepper.run(pivots, plan[pos:], samples, th, sel_arr, y, xp, S, Sp, out, outdV, outdT2, lim)
         n_iter += it
         pos += done
         if code == 0:
             break
-        if code == 1:
-            k = int(out_idx[pos - 1])
-            ended_by = check_end(k, out[:, 0], out[:, 2], out[:, 3], out[:, 4], limits)
+        m = samples.next
+        if code == -3:
+            raise RuntimeError("compiled stepper: no work memory, or a sample inside a step without its history")
+        if code == 1:  # sample m broke a limit (written, not kept)
+            ended_by = check_end(m, out[:, 0], out[:, 2], out[:, 3], out[:, 4], limits)
             break
         if code == -4:
-            ended_by = _no_right_limit(float(np.sum(h[:pos])), cur[pos - 1], out_I[pos - 1], limits)
+            ended_by = _no_right_limit(float(t_end[pos - 1]), cur[pos - 1], I_dis[m], limits)
             break
         # a failed step: y, xp, S, Sp hold the last converged state; first a pivot order for this state (this
         # run's own: later runs start from the base again), then smaller steps. -5: a zero-length solve (the
         # start, or the right limit at a current change) met the vanishing pivot
+        right_limit = h[pos] > 0.0  # a -5 after a step with h > 0 comes from the right limit at its end
         if reanalysed != (pos, code):
             if code == -5:
-                u0 = np.array([0.0, 0.0, out_I[pos] if out_idx[pos] >= 0 else cur[pos], T_amb])
+                u0 = np.array([0.0, 0.0, I_dis[m] if right_limit else cur[pos], T_amb])
                 pivots = pivots.replace(zero=stepper.analyse_at(y, y[:nx], xp, u0, th))
             else:
                 u1 = np.array([max(h[pos], 1e-3), w[pos], cur[pos], T_amb])
@@ -186,25 +171,20 @@ def run_native(
             reanalysed = (pos, code)
             continue
         if code == -5:  # still singular: the state before the step is kept, its sample not written
-            t_fail = float(np.sum(h[: pos + 1]))
-            if out_idx[pos] >= 0:
-                ended_by = _no_right_limit(t_fail, cur[pos], out_I[pos], limits)
-                kept_beyond = False
+            if right_limit:
+                ended_by = _no_right_limit(float(t_end[pos]), cur[pos], I_dis[m], limits)
             else:
-                ended_by = f"solver: singular zero-length solve at t = {t_fail:.6g} s"
+                ended_by = f"solver: singular zero-length solve at t = {float(t_end[pos]):.6g} s"
             break
         hb = h[pos]
         if hb < 1e-6:
-            ended_by = f"solver: Newton did not converge at t = {float(np.sum(h[:pos])):.6g} s"
+            ended_by = f"solver: Newton did not converge at t = {float(t_end[pos] - hb):.6g} s"
             break
+        t_end = split_ends(t_end, h, pos)
         h, w, cur = split_step(h, w, cur, pos)
-        out_idx = np.concatenate([out_idx[:pos], [-1, -1, -1], out_idx[pos:]])
-        out_I = np.concatenate([out_I[:pos], [0.0, 0.0, 0.0], out_I[pos:]])
-    # samples written before the stop
-    written = out_idx[:pos][out_idx[:pos] >= 0]
-    n_keep = int(written.max()) + 1 if written.size else 0
-    if kept_beyond and ended_by is not None and ended_by.startswith(("V ", "T_", "surface", "solver: no right-limit")):
-        n_keep -= 1  # the sample beyond the limit (or without a solution) is not part of the result
+        emit = np.concatenate([emit[:pos], [1, 1, 1], emit[pos:]])
+        plan = StepPlan.of(h, w, cur, np.full(h.size, T_amb), t_end, emit)
+    n_keep = samples.next  # the samples written and within limits
     V, T1, T2, smin, smax = (out[:n_keep, j] for j in range(5))
     return Trajectory(
         V,

@@ -235,45 +235,74 @@ static void output(const Problem *P, const double *y, const double *u, const dou
   }
 }
 
-/* Run steps [0, nsteps). State in/out: y[n], xp[nx], S[nx*ns], Sp[nx*ns] (column-major per parameter),
- * Sy[n*ns] work/out; sensitivity arrays row-major (S[i*ns + j]). sched: h, w, I per step; out_idx[k] >= 0: write sample out_idx[k] after step k with the
- * right-limit current out_I[k]. P: the pivot program of steps with h > 0; P0: that of zero-length solves (the
- * consistent start and the right limits), whose Jacobian has other values. Returns nsteps on success, else the
- * index of the failed step (and *code: -1 Newton, -2 singular with P, -5 singular with P0; the state is that
- * before the failed step), or the number of steps done when a sample broke a limit (*code = 1) or its right-limit
- * solve failed otherwise (*code = -4). */
+/* Interpolated state at time tau (<= 0) from a step's end: quadratic through the starts of this step (tau = -h)
+ * and the step before it (tau = -h - hp) and its end (tau = 0), or linear when hp <= 0 (a restart). The same
+ * weights on the sensitivity rows (n x ns) when S0 is given. */
+static void interpolate(int n, int ns, double tau, double h, double hp, const double *y0, const double *y1,
+                        const double *y2, const double *S0, const double *S1, const double *S2, double *yi,
+                        double *Si) {
+  double l0, l1, l2;
+  if (hp > 0.0) {
+    double t1 = -h, t2 = -h - hp;
+    l0 = (tau - t1) * (tau - t2) / ((0.0 - t1) * (0.0 - t2));
+    l1 = (tau - 0.0) * (tau - t2) / ((t1 - 0.0) * (t1 - t2));
+    l2 = (tau - 0.0) * (tau - t1) / ((t2 - 0.0) * (t2 - t1));
+  } else {
+    l0 = 1.0 + tau / h;
+    l1 = -tau / h;
+    l2 = 0.0;
+  }
+  for (int i = 0; i < n; ++i) yi[i] = l0 * y0[i] + l1 * y1[i] + (l2 != 0.0 ? l2 * y2[i] : 0.0);
+  if (S0)
+    for (size_t i = 0; i < (size_t)n * ns; ++i) Si[i] = l0 * S0[i] + l1 * S1[i] + (l2 != 0.0 ? l2 * S2[i] : 0.0);
+}
+
+/* Run steps [0, nsteps). State in/out: y[n], xp[nx], S[nx*ns], Sp[nx*ns], Sy[n*ns] (full sensitivities of y);
+ * sensitivity arrays row-major (S[i*ns + j]). sched: h, w, I, T_amb, t_end (end time of each step) and emit
+ * (whether samples may be written after the step) per step. Samples: t_samp, I_samp (the current that starts at
+ * the sample) for m in [*m, nsamp); a sample at a step's end is written there (the right limit: an algebraic
+ * re-solve when I_samp differs from the step's current); a sample inside a step is interpolated (dense: hist
+ * holds the starts of the current and the previous step, y and n*ns sensitivities each, kept across calls).
+ * P: the pivot program of steps with h > 0; P0: that of zero-length solves (the consistent start and the right
+ * limits), whose Jacobian has other values. Returns nsteps on success, else the index of the failed step (and
+ * *code: -1 Newton, -2 singular with P, -5 singular with P0; the state is that before the failed step, *m
+ * restored), or the number of steps done when sample *m broke a limit (*code = 1, written but not counted) or its
+ * right-limit solve failed otherwise (*code = -4). */
 int bl_run(const Problem *P, const Problem *P0, int nsteps, const double *h, const double *w, const double *I,
-           const double *Tamb,
-           const int *out_idx, const double *out_I, const double *th, const int *sel, int ns, double tol,
-           int maxit, const double *limits, double *y, double *xp, double *S, double *Sp, double *Sy, double *out, double *outdV,
-           double *outdT2, int *code, int *iters) {
-  int n = P->n, nx = P->nx, k, have_lu = 0, have_lu0 = 0;
-  size_t nsx = (size_t)nx * (ns > 0 ? ns : 1);
+           const double *Tamb, const double *t_end, const int *emit, int nsamp, const double *t_samp,
+           const double *I_samp, int *m_io, int dense, double *yhist, double *Shist, const double *th,
+           const int *sel, int ns, double tol, int maxit, const double *limits, double *y, double *xp, double *S,
+           double *Sp, double *Sy, double *out, double *outdV, double *outdT2, int *code, int *iters) {
+  int n = P->n, nx = P->nx, k, have_lu = 0, have_lu0 = 0, emitted1 = 1, emitted2 = 1;
+  size_t nsx = (size_t)nx * (ns > 0 ? ns : 1), nsy = (size_t)n * (ns > 0 ? ns : 1);
   double *ynew = malloc(sizeof(double) * n), *R = malloc(sizeof(double) * n);
   double *yt = malloc(sizeof(double) * n), *Rt = malloc(sizeof(double) * n);
-  double *c = malloc(sizeof(double) * (size_t)n * (ns > 0 ? ns : 1));
+  double *c = malloc(sizeof(double) * nsy);
   double *xn = malloc(sizeof(double) * nx), *jnz = malloc(sizeof(double) * (P->jac_nnz + 1));
   double *jth = malloc(sizeof(double) * (P->jth_nnz + 1));
   double *lu = malloc(sizeof(double) * P->nslot), *lu0 = malloc(sizeof(double) * P0->nslot);
   double *xp_save = malloc(sizeof(double) * nx);
   double *S_save = malloc(sizeof(double) * nsx), *Sp_save = malloc(sizeof(double) * nsx);
   double *y0 = malloc(sizeof(double) * n), *yprev = malloc(sizeof(double) * n);
+  double *yi = malloc(sizeof(double) * n), *Si = malloc(sizeof(double) * nsy);
   int have_right = 0;
-  double *Sy0 = malloc(sizeof(double) * (size_t)n * (ns > 0 ? ns : 1));
+  double *Sy0 = malloc(sizeof(double) * nsy);
   double *vy = malloc(sizeof(double) * n), *vth = malloc(sizeof(double) * (P->nth + 1));
+  /* dense history: start of this step (A) and of the step before (B) */
+  double *yA = yhist, *yB = yhist + n, *SA = Shist, *SB = Shist ? Shist + nsy : 0;
   int ret = nsteps;
   if (ensure_work()) { *code = -3; return 0; }
   *code = 0;
   *iters = 0;
   for (k = 0; k < nsteps; ++k) {
     double u[4] = {h[k], w[k], I[k], Tamb[k]};
-    int it;
+    int it, m0 = *m_io;
     memcpy(xn, y, sizeof(double) * nx);
     /* predictor: after a current step, the right-limit state found for the output; on a continuing BDF2
        step, linear extrapolation of the last two solutions; else the last solution */
     if (have_right) {
       memcpy(ynew, y0, sizeof(double) * n);
-    } else if (w[k] > 0.0 && k > 1 && h[k - 1] > 0.0 && I[k - 1] == I[k] && I[k - 2] == I[k] && out_idx[k - 2] < 0) {
+    } else if (w[k] > 0.0 && k > 1 && h[k - 1] > 0.0 && I[k - 1] == I[k] && I[k - 2] == I[k] && !emitted2) {
       double r = h[k] / h[k - 1];
       for (int i = 0; i < n; ++i) ynew[i] = y[i] + r * (y[i] - yprev[i]);
     } else {
@@ -284,8 +313,11 @@ int bl_run(const Problem *P, const Problem *P0, int nsteps, const double *h, con
     const Problem *Pk = h[k] > 0.0 ? P : P0;
     double *luk = h[k] > 0.0 ? lu : lu0;
     int *hlk = h[k] > 0.0 ? &have_lu : &have_lu0;
-    int right = out_idx[k] >= 0 && out_I[k] != I[k];
-    if (right) { /* kept to undo this step if its right limit meets a vanishing pivot */
+    double eps = 1e-9 * (fabs(t_end[k]) > 1.0 ? fabs(t_end[k]) : 1.0);
+    int mm = *m_io;
+    while (emit[k] && mm < nsamp && t_samp[mm] <= t_end[k] + eps) ++mm;
+    if (mm > *m_io && t_samp[mm - 1] >= t_end[k] - eps && I_samp[mm - 1] != I[k]) {
+      /* a right limit at the end: kept to undo this step if it meets a vanishing pivot */
       memcpy(xp_save, xp, sizeof(double) * nx);
       if (ns) { memcpy(S_save, S, sizeof(double) * nsx); memcpy(Sp_save, Sp, sizeof(double) * nsx); }
     }
@@ -302,14 +334,23 @@ int bl_run(const Problem *P, const Problem *P0, int nsteps, const double *h, con
     if (h[k] > 0) memcpy(xp, xn, sizeof(double) * nx);
     memcpy(yprev, y, sizeof(double) * n);
     memcpy(y, ynew, sizeof(double) * n);
-    if (out_idx[k] >= 0) {
-      int m = out_idx[k];
+    int stop = 0, emitted = 0;
+    while (emit[k] && *m_io < nsamp && t_samp[*m_io] <= t_end[k] + eps) {
+      int m = *m_io;
       double *o = out + (size_t)5 * m;
-      if (out_I[k] == I[k]) {
+      double tau = t_samp[m] - t_end[k];
+      emitted = 1;
+      if (tau < -eps) {
+        /* inside the step (the current is the step's): interpolated from the history */
+        if (!dense) { *code = -3; ret = k; stop = 1; break; }
+        double hp = w[k] > 0.0 ? h[k] / w[k] : 0.0;
+        interpolate(n, ns, tau, h[k], hp, y, yA, yB, ns ? Sy : 0, SA, SB, yi, Si);
+        output(P, yi, u, th, sel, ns, Si, o, outdV + (size_t)m * ns, outdT2 + (size_t)m * ns, vy, vth);
+      } else if (I_samp[m] == I[k]) {
         output(P, y, u, th, sel, ns, Sy, o, outdV + (size_t)m * ns, outdT2 + (size_t)m * ns, vy, vth);
       } else {
         /* right limit: algebraic re-solve with the new current (a zero-length step) */
-        double u0[4] = {0.0, 0.0, out_I[k], Tamb[k]};
+        double u0[4] = {0.0, 0.0, I_samp[m], Tamb[k]};
         memcpy(y0, y, sizeof(double) * n);
         it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
         int beyond = 0;
@@ -319,25 +360,27 @@ int bl_run(const Problem *P, const Problem *P0, int nsteps, const double *h, con
              solver failure) */
           memcpy(y0, y, sizeof(double) * n);
           for (int q = 1; q <= 8; ++q) {
-            u0[2] = I[k] + (out_I[k] - I[k]) * q / 8.0;
+            u0[2] = I[k] + (I_samp[m] - I[k]) * q / 8.0;
             it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
             if (it < 0) break;
             output(P0, y0, u0, th, sel, 0, Sy0, o, 0, 0, vy, vth);
             if (!(o[0] >= limits[0] && o[0] <= limits[1])) { beyond = 1; break; }
           }
         }
-        if (beyond) { *code = 1; ret = k + 1; break; }
+        if (beyond) { *code = 1; ret = k + 1; stop = 1; break; }
         if (it >= 0 && ns && sens(P0, y0, y, xp, u0, th, sel, ns, S, Sp, Sy0, lu0, jnz, jth, c)) it = -2;
         if (it == -2) { /* a vanishing pivot: undo the step, so the caller can re-analyse P0 and redo it */
           memcpy(y, yprev, sizeof(double) * n);
           memcpy(xp, xp_save, sizeof(double) * nx);
           if (ns) { memcpy(S, S_save, sizeof(double) * nsx); memcpy(Sp, Sp_save, sizeof(double) * nsx); }
+          *m_io = m0;
           *code = -5;
           ret = k;
+          stop = 1;
           break;
         }
         /* the step itself converged: the state has advanced, so a failure here ends the run */
-        if (it < 0) { *code = -4; ret = k + 1; break; }
+        if (it < 0) { *code = -4; ret = k + 1; stop = 1; break; }
         if (ns) have_lu0 = 1;
         output(P, y0, u0, th, sel, ns, Sy0, o, outdV + (size_t)m * ns, outdT2 + (size_t)m * ns, vy, vth);
         have_right = 1;
@@ -346,11 +389,29 @@ int bl_run(const Problem *P, const Problem *P0, int nsteps, const double *h, con
       if (!(o[0] >= limits[0] && o[0] <= limits[1] && o[2] <= limits[2] && o[3] > 0.0 && o[4] < 1.0)) {
         *code = 1;
         ret = k + 1;
+        stop = 1;
         break;
+      }
+      ++*m_io;
+    }
+    if (stop) break;
+    emitted2 = emitted1;
+    emitted1 = emitted;
+    if (dense) { /* the start of the next step: the right limit where one was taken */
+      double *tmp = yB; yB = yA; yA = tmp;
+      memcpy(yA, have_right ? y0 : y, sizeof(double) * n);
+      if (ns) {
+        tmp = SB; SB = SA; SA = tmp;
+        memcpy(SA, have_right ? Sy0 : Sy, sizeof(double) * nsy);
       }
     }
   }
+  /* the history goes back in its fixed places for the next call */
+  if (dense && yA != yhist) {
+    memcpy(yi, yA, sizeof(double) * n); memcpy(yA, yB, sizeof(double) * n); memcpy(yB, yi, sizeof(double) * n);
+    if (ns) { memcpy(Si, SA, sizeof(double) * nsy); memcpy(SA, SB, sizeof(double) * nsy); memcpy(SB, Si, sizeof(double) * nsy); }
+  }
   free(ynew); free(R); free(yt); free(Rt); free(c); free(xn); free(jnz); free(jth); free(lu); free(lu0); free(y0); free(yprev);
-  free(Sy0); free(vy); free(vth); free(xp_save); free(S_save); free(Sp_save);
+  free(Sy0); free(vy); free(vth); free(xp_save); free(S_save); free(Sp_save); free(yi); free(Si);
   return ret;
 }

@@ -17,6 +17,7 @@ from battlab import Cell, parameters
 from battlab.cell import F
 from battlab.model.dfn import C_SCALE, DFN
 from battlab.model.mesh import Mesh
+from battlab.model.solver import Settings
 from protocols import Profile
 
 ONE_C = 2.7  # A, nca18650
@@ -54,18 +55,23 @@ def relative_error(exact: np.ndarray, approx: np.ndarray) -> float:
 
 
 def fd_errors(
-    cell: Cell, prof: Profile, soc0: float, names: tuple[str, ...], temperature: tuple[str, ...] = ()
+    cell: Cell,
+    prof: Profile,
+    soc0: float,
+    names: tuple[str, ...],
+    temperature: tuple[str, ...] = (),
+    settings: Settings | None = None,
 ) -> dict[str, float]:
     """Relative 2-norm errors of dV/dθ̄ (and dT_surface/dθ̄ for ``temperature``) against central differences
     on the same time grid, keyed ``"V name"``/``"T name"``."""
-    res = battlab.simulate(cell, prof, soc0=soc0, sensitivities=list(names))
+    res = battlab.simulate(cell, prof, soc0=soc0, sensitivities=list(names), settings=settings)
     assert res.ended_by is None, res.ended_by
     assert res.sensitivities.shape == res.sensitivities_T.shape == (prof.t.size, len(names))
     out: dict[str, float] = {}
     for j, name in enumerate(names):
         tb = cell.normalised(name)
-        plus = battlab.simulate(cell.with_normalised(**{name: tb + FD_STEP}), prof, soc0=soc0)
-        minus = battlab.simulate(cell.with_normalised(**{name: tb - FD_STEP}), prof, soc0=soc0)
+        plus = battlab.simulate(cell.with_normalised(**{name: tb + FD_STEP}), prof, soc0=soc0, settings=settings)
+        minus = battlab.simulate(cell.with_normalised(**{name: tb - FD_STEP}), prof, soc0=soc0, settings=settings)
         assert plus.ended_by is None and minus.ended_by is None
         fd_v = (plus.voltage - minus.voltage) / (2.0 * FD_STEP)
         assert np.linalg.norm(fd_v) > 1e-6, f"{name}: no voltage sensitivity to check against"
@@ -94,6 +100,15 @@ def test_sensitivities_match_finite_differences_subset(nca18650: Cell, profile: 
 def test_sensitivities_match_finite_differences_all_18(nca18650: Cell, profile: str) -> None:
     """All 18 dynamic parameters, voltage and surface temperature, non-isothermal."""
     assert_small(fd_errors(nca18650, PROFILES[profile](), 0.5, parameters.NAMES, parameters.NAMES))
+
+
+def test_sensitivities_at_samples_inside_steps_match_finite_differences(nca18650: Cell) -> None:
+    """Steps across samples (up to 5 s on a 1 s grid): interpolated samples carry the interpolated sensitivities,
+    the exact derivatives of the discrete solution as at step ends."""
+    t = np.arange(0.0, 241.0)
+    prof = Profile(t, np.where((t // 40.0) % 2 == 0, -2.0 * ONE_C, 0.5 * ONE_C))
+    across = Settings(across_samples=True, growth=1.5, dt_max=5.0)
+    assert_small(fd_errors(nca18650, prof, 0.5, ("R_s_n", "D_s_p", "k_n", "c_e0"), ("k_n",), across))
 
 
 def test_sensitivity_columns_follow_the_order_asked(nca18650: Cell) -> None:
