@@ -246,6 +246,10 @@ class NativeStepper:
         self.compile_seconds = time.perf_counter() - t1
         self.lib = ctypes.CDLL(str(lib_path))
         self.lib.bl_run.restype = _INT
+        P, I_, D = ctypes.c_void_p, _INT, ctypes.c_double
+        # pointers as addresses: the arrays are contiguous (float64, int32 where the C code reads int)
+        self.lib.bl_run.argtypes = [P, P, I_, P, P, P, P, P, P, I_, P, P, P, I_, P, P, P, P, I_, D, I_]
+        self.lib.bl_run.argtypes += [P] * 11
         self._jth_colptr = np.ascontiguousarray(self.jth_sp.colind(), dtype=np.int32)
         self._jth_row = np.ascontiguousarray(self.jth_sp.row(), dtype=np.int32)
         self._base: OrderedDict[bytes, PivotSet] = OrderedDict()
@@ -338,51 +342,47 @@ class NativeStepper:
         ``samples.next`` broke a limit, -1 Newton failed, -2 a pivot of ``pivots.step`` vanished, -5 one of
         ``pivots.zero`` (the state is then that before the failed step), -4 no right-limit solution."""
         ns = len(sel)
-        d = lambda x: np.ascontiguousarray(x, dtype=np.float64)  # noqa: E731
-        th, limits = d(th), d(limits)
-        sel = np.ascontiguousarray(sel, dtype=np.int32)
+        d = lambda x: np.ascontiguousarray(x, dtype=np.float64).ctypes.data  # noqa: E731
+        ints = np.array([samples.next, 0, 0], dtype=np.int32)  # next sample (in/out), code, Newton iterations
         Sy = np.zeros(self.model.layout.ny * max(ns, 1))
-        code = _INT(0)
-        iters = _INT(0)
-        m = _INT(samples.next)
-        pd = lambda x: x.ctypes.data_as(_PD)  # noqa: E731
         dense = samples.yhist is not None
+        a = ints.ctypes.data
         done = self.lib.bl_run(
-            ctypes.byref(pivots.step.problem),
-            ctypes.byref(pivots.zero.problem),
-            _INT(steps.h.size),
-            pd(steps.h),
-            pd(steps.w),
-            pd(steps.current),
-            pd(steps.T_amb),
-            pd(steps.t_end),
-            steps.emit.ctypes.data_as(_PI),
-            _INT(samples.t.size),
-            pd(samples.t),
-            pd(samples.current),
-            ctypes.byref(m),
-            _INT(int(dense)),
-            pd(samples.yhist) if dense else None,
-            pd(samples.Shist) if dense and ns else None,
-            pd(th),
-            sel.ctypes.data_as(_PI),
-            _INT(ns),
-            ctypes.c_double(tol),
-            _INT(maxit),
-            pd(limits),
-            pd(y),
-            pd(xp),
-            pd(S),
-            pd(Sp),
-            pd(Sy),
-            pd(out),
-            pd(outdV),
-            pd(outdT2),
-            ctypes.byref(code),
-            ctypes.byref(iters),
+            ctypes.addressof(pivots.step.problem),
+            ctypes.addressof(pivots.zero.problem),
+            steps.h.size,
+            steps.h.ctypes.data,
+            steps.w.ctypes.data,
+            steps.current.ctypes.data,
+            steps.T_amb.ctypes.data,
+            steps.t_end.ctypes.data,
+            steps.emit.ctypes.data,
+            samples.t.size,
+            samples.t.ctypes.data,
+            samples.current.ctypes.data,
+            a,
+            int(dense),
+            samples.yhist.ctypes.data if dense else None,
+            samples.Shist.ctypes.data if dense and ns else None,
+            d(th),
+            np.ascontiguousarray(sel, dtype=np.int32).ctypes.data,
+            ns,
+            tol,
+            maxit,
+            d(limits),
+            y.ctypes.data,
+            xp.ctypes.data,
+            S.ctypes.data,
+            Sp.ctypes.data,
+            Sy.ctypes.data,
+            out.ctypes.data,
+            outdV.ctypes.data,
+            outdT2.ctypes.data,
+            a + 4,
+            a + 8,
         )
-        samples.next = int(m.value)
-        return int(done), int(code.value), int(iters.value)
+        samples.next = int(ints[0])
+        return int(done), int(ints[1]), int(ints[2])
 
 
 @dataclass(frozen=True)
