@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from battlab.io.paths import check_output_path
 from protocols.errors import InputError
 
 
@@ -69,6 +70,7 @@ def sensitivity(
     from battlab.design import workflow
     from battlab.progress import RichBar
 
+    check_output_path(output)
     rep = workflow.sweep(
         library_path,
         cell_name,
@@ -154,6 +156,8 @@ def groups(
     from battlab import parameters
     from battlab.design import workflow
 
+    if out_dir is not None:
+        check_output_path(out_dir, directory=True)
     console = Console()
     rep = workflow.groups(
         store_path, k=k, by=by, out_dir=out_dir, perturb=perturb, profile_id=profile_id, unweighted=unweighted
@@ -288,6 +292,7 @@ def design(
 
     from battlab.design import workflow
 
+    check_output_path(output)
     costs = None
     if costs_file:
         try:

@@ -70,8 +70,9 @@ def fit(
 ) -> None:
     """Identify CELL's parameters from DATA (equilibrium from an OCV test, dynamics by weighted LM)."""
     from battlab.identify import workflow
+    from battlab.io.paths import check_output_path
 
-    out = Path(output)
+    out = check_output_path(output)
     stem = out.name.removesuffix(".json").removesuffix(".bpx")
 
     def show(k: int, r: Any) -> None:
@@ -195,7 +196,9 @@ def validate(
     """Print the voltage RMSE of each CELL on each DATA file and save the figures (Figs. 7 and 9)."""
     from battlab.identify import workflow
     from battlab.identify.validation import format_table
+    from battlab.io.paths import check_output_path
 
+    check_output_path(output, directory=True)
     rep = workflow.validate(data, cells, soc0=soc0, ambient=parse_ambients(ambients), dt=dt, fix_sign=fix_sign)
     for w in rep.warnings:
         click.echo(f"warning: {w}", err=True)

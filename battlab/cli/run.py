@@ -114,8 +114,10 @@ def run(
     verbose: bool,
 ) -> None:
     """Run PLAN (a protocol TOML/JSON with an optional [run] table) on a cycler and a chamber, logging to -o."""
+    from battlab.io.paths import check_output_path
     from battlab.lab.session import VIRTUAL, RunSettings, start_run
 
+    check_output_path(output)
     _logging(verbose)
     is_virtual = VIRTUAL in (cycler_url.strip(), chamber_url.strip())
     if speed is not None and not is_virtual:

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from battlab.io import paths
 from battlab.simulation import Result
 from protocols.errors import InputError
 
@@ -41,12 +42,7 @@ SUFFIXES = (".bdf.csv", ".csv", ".h5", ".hdf5")
 
 def check_output_path(path: str | Path) -> Path:
     """An output path :func:`write_result` can write, checked before the work: suffix and directory."""
-    path = Path(path)
-    if not path.name.endswith(SUFFIXES):
-        raise InputError(f"{path}: output must end in .bdf.csv, .csv, .h5 or .hdf5")
-    if not path.parent.is_dir():
-        raise InputError(f"{path}: directory {path.parent} does not exist")
-    return path
+    return paths.check_output_path(path, SUFFIXES)
 
 
 def write_result(res: Result, path: str | Path, ambient_K: float, meta: dict[str, Any]) -> Path:

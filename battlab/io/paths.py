@@ -1,0 +1,37 @@
+"""Output paths checked before a command does its work: the directory exists, the name has an accepted ending."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from protocols.errors import InputError
+
+
+def check_output_path(path: str | Path, suffixes: tuple[str, ...] | None = None, *, directory: bool = False) -> Path:
+    """An output path that can be written, checked before the work starts.
+
+    ``suffixes``: the accepted endings (None: any). ``directory``: the output is a directory (created by the
+    command if missing). Either way the directory it goes into must exist: a mistyped path is refused at once,
+    not after the work, and no directory tree is made from a typo.
+    """
+    path = Path(path)
+    if suffixes is not None and not path.name.endswith(suffixes):
+        raise InputError(f"{path}: output must end in {_either(suffixes)}")
+    parent = path.parent
+    if not parent.exists():
+        raise InputError(f"{path}: directory {parent} does not exist")
+    if not parent.is_dir():
+        raise InputError(f"{path}: {parent} is a file, not a directory")
+    if directory and path.exists() and not path.is_dir():
+        raise InputError(f"{path}: is a file; the output is a directory")
+    if not directory and path.is_dir():
+        raise InputError(f"{path}: is a directory; give a file name")
+    return path
+
+
+def _either(suffixes: tuple[str, ...]) -> str:
+    """'.a, .b or .c'."""
+    return suffixes[0] if len(suffixes) == 1 else f"{', '.join(suffixes[:-1])} or {suffixes[-1]}"
+
+
+__all__ = ["check_output_path"]
