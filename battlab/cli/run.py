@@ -16,6 +16,7 @@ from typing import Any
 
 import click
 
+from battlab.cli.options import physics_option
 from protocols.errors import InputError
 
 
@@ -82,13 +83,7 @@ def _logging(verbose: bool) -> None:
     help="Start SOC: of the virtual cell (virtual URLs), else recorded as the known start state.",
 )
 @click.option("--seed", type=int, default=0, show_default=True, help="Noise seed of the in-process virtual tester.")
-@click.option(
-    "--physics",
-    type=click.Choice(["dfn", "standin"]),
-    default="dfn",
-    show_default=True,
-    help="Cell physics of the in-process virtual tester (standin: the drivers' equivalent circuit).",
-)
+@physics_option(auto=False, default="dfn")
 @click.option(
     "--library",
     type=click.Path(dir_okay=False, path_type=Path),
