@@ -70,7 +70,7 @@ def sensitivity(
     from battlab.design import workflow
     from battlab.progress import RichBar
 
-    check_output_path(output)
+    check_output_path(output, create=True)
     rep = workflow.sweep(
         library_path,
         cell_name,
@@ -157,7 +157,7 @@ def groups(
     from battlab.design import workflow
 
     if out_dir is not None:
-        check_output_path(out_dir, directory=True)
+        check_output_path(out_dir, directory=True, create=True)
     console = Console()
     rep = workflow.groups(
         store_path, k=k, by=by, out_dir=out_dir, perturb=perturb, profile_id=profile_id, unweighted=unweighted
@@ -292,7 +292,7 @@ def design(
 
     from battlab.design import workflow
 
-    check_output_path(output)
+    check_output_path(output, create=True)
     costs = None
     if costs_file:
         try:

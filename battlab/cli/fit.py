@@ -72,7 +72,7 @@ def fit(
     from battlab.identify import workflow
     from battlab.io.paths import check_output_path
 
-    out = check_output_path(output)
+    out = check_output_path(output, create=True)
     stem = out.name.removesuffix(".json").removesuffix(".bpx")
 
     def show(k: int, r: Any) -> None:
@@ -198,7 +198,7 @@ def validate(
     from battlab.identify.validation import format_table
     from battlab.io.paths import check_output_path
 
-    check_output_path(output, directory=True)
+    check_output_path(output, directory=True, create=True)
     rep = workflow.validate(data, cells, soc0=soc0, ambient=parse_ambients(ambients), dt=dt, fix_sign=fix_sign)
     for w in rep.warnings:
         click.echo(f"warning: {w}", err=True)

@@ -7,18 +7,23 @@ from pathlib import Path
 from protocols.errors import InputError
 
 
-def check_output_path(path: str | Path, suffixes: tuple[str, ...] | None = None, *, directory: bool = False) -> Path:
-    """An output path that can be written, checked before the work starts.
+def check_output_path(
+    path: str | Path, suffixes: tuple[str, ...] | None = None, *, directory: bool = False, create: bool = False
+) -> Path:
+    """An output path that can be written, checked before the work starts; nothing is written here.
 
-    ``suffixes``: the accepted endings (None: any). ``directory``: the output is a directory (created by the
-    command if missing). Either way the directory it goes into must exist: a mistyped path is refused at once,
-    not after the work, and no directory tree is made from a typo.
+    ``suffixes``: the accepted endings (None: any). ``directory``: the output is a directory (the command makes
+    it). ``create``: the command makes the directory the output goes into when it is missing (then the nearest
+    existing one must be a directory); else that directory must exist, so a mistyped path is refused at once.
     """
     path = Path(path)
     if suffixes is not None and not path.name.endswith(suffixes):
         raise InputError(f"{path}: output must end in {_either(suffixes)}")
     parent = path.parent
-    if not parent.exists():
+    if create:
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
+    elif not parent.exists():
         raise InputError(f"{path}: directory {parent} does not exist")
     if not parent.is_dir():
         raise InputError(f"{path}: {parent} is a file, not a directory")

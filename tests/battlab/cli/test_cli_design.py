@@ -77,7 +77,6 @@ def test_groups_table_json_and_figure(workdir: Path) -> None:
 
 def test_design_writes_a_loadable_plan_and_the_summary_contract(workdir: Path) -> None:
     plan = workdir / "out" / "plan.toml"
-    plan.parent.mkdir(exist_ok=True)  # the CLI writes into an existing directory, never makes one from a typo
     r = CliRunner().invoke(main, ["design", str(workdir / "sens.h5"), "-o", str(plan), "-M", "2", "-k", "2"])
     assert r.exit_code == 0, r.output
     summary = json.loads((plan.parent / "summary.json").read_text())
@@ -101,7 +100,6 @@ def test_design_writes_a_loadable_plan_and_the_summary_contract(workdir: Path) -
 
 def test_design_with_a_criterion_and_a_budget(workdir: Path) -> None:
     plan = workdir / "a" / "plan.toml"
-    plan.parent.mkdir(exist_ok=True)
     r = CliRunner().invoke(
         main,
         [

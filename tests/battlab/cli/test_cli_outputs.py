@@ -1,5 +1,7 @@
-"""Every command that writes a file checks its output path before the work: a missing directory is one line
-naming the path and the directory, exit code 2, and nothing written."""
+"""Every command that writes a file checks its output path before the work. Commands that write into an
+existing directory (library, simulate, run) refuse a missing one; commands that make their output's directory
+(design, sensitivity, groups, fit, validate, export) refuse a path through a file. Either is one line naming
+the path, exit code 2, and nothing written."""
 
 from __future__ import annotations
 
@@ -11,8 +13,9 @@ from click.testing import CliRunner
 
 from battlab.cli import describe_os_error, main
 
-COMMANDS = ("library build", "library plot", "export", "simulate", "sensitivity", "groups", "design", "fit")
-COMMANDS += ("validate", "run")
+REFUSING = ("library build", "library plot", "simulate", "run")
+CREATING = ("export", "sensitivity", "groups", "design", "fit", "validate")
+COMMANDS = REFUSING + CREATING
 
 
 def _commands(tmp: Path, out: Path) -> dict[str, list[str]]:
@@ -38,7 +41,7 @@ def _commands(tmp: Path, out: Path) -> dict[str, list[str]]:
     }
 
 
-@pytest.mark.parametrize("name", COMMANDS)
+@pytest.mark.parametrize("name", REFUSING)
 def test_a_missing_output_directory_is_one_line_exit_2_and_nothing_written(
     name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -56,6 +59,25 @@ def test_a_missing_output_directory_is_one_line_exit_2_and_nothing_written(
     assert f"directory {missing} does not exist" in lines[0], lines
     assert "None" not in lines[0] and "Traceback" not in r.stderr
     assert not missing.exists()
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before
+
+
+@pytest.mark.parametrize("name", COMMANDS)
+def test_an_output_below_a_file_is_one_line_exit_2_and_nothing_written(
+    name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("BATTLAB_HOME", str(tmp_path / "home"))
+    blocker = tmp_path / "afile"
+    blocker.write_text("not a directory")
+    args = _commands(tmp_path, blocker / "sub")[name]
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    r = CliRunner().invoke(main, args)
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert r.exit_code == 2, (r.exit_code, r.stdout, r.stderr, r.exception)
+    assert len(lines) == 1 and lines[0].startswith(f"error: {blocker / 'sub'}"), lines
+    why = f"{blocker} is a file, not a directory" if name in CREATING else f"directory {blocker / 'sub'} does not exist"
+    assert why in lines[0], lines
     assert sorted(p.name for p in tmp_path.rglob("*")) == before
 
 
