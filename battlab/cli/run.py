@@ -90,7 +90,7 @@ def _logging(verbose: bool) -> None:
     default=None,
     help="Profile library for library_id steps (default: the plan's, else the built-in one).",
 )
-@click.option("--quiet", is_flag=True, help="No progress display.")
+@click.option("--quiet", is_flag=True, help="No progress display (the result lines are always printed).")
 @click.option("-v", "--verbose", is_flag=True, help="Log state changes and retries.")
 def run(
     plan: Path,
@@ -204,7 +204,7 @@ def show_run(run_id: int) -> None:
 @click.argument("run_id", type=int)
 @click.option("--cycler", "cycler_url", default=None, help="Override the cycler URL recorded for the run.")
 @click.option("--chamber", "chamber_url", default=None, help="Override the chamber URL recorded for the run.")
-@click.option("--quiet", is_flag=True, help="No progress display.")
+@click.option("--quiet", is_flag=True, help="No progress display (the result lines are always printed).")
 @click.option("-v", "--verbose", is_flag=True, help="Log state changes and retries.")
 def resume(run_id: int, cycler_url: str | None, chamber_url: str | None, quiet: bool, verbose: bool) -> None:
     """Resume run RUN_ID from its first step not completed (that step restarts from its beginning)."""
