@@ -151,8 +151,9 @@ def parse_ambients(values: tuple[str, ...]) -> dict[str, float] | None:
 
 def _print_estimates(r: Any) -> None:
     """The final stage's estimates: value, 95 % interval, flags."""
-    from rich.console import Console
     from rich.table import Table
+
+    from battlab.cli.console import make_console
 
     t = Table(title=f"identified parameters (stage {r.stage}; s² = {r.statistics.s2:.3g})")
     for col in ("parameter", "value", "95 % interval", "note"):
@@ -166,7 +167,7 @@ def _print_estimates(r: Any) -> None:
         t.add_row(e.name, f"{e.value:.4g}", ci, note.strip())
     for i in r.statistics.invariants:
         t.add_row(i.name, f"{i.value:.4g}", f"[{i.ci95[0]:.4g}, {i.ci95[1]:.4g}]", f"invariant {i.definition}")
-    Console(width=110).print(t)
+    make_console().print(t)
 
 
 @click.command("validate")

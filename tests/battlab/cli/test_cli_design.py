@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -73,6 +74,24 @@ def test_groups_table_json_and_figure(workdir: Path) -> None:
     assert sorted(n for g in data["groups"] for n in g) == sorted(parameters.NAMES)
     assert (out / "sens.ranking.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert len(data["ranking"]["order_mean"]) == 18
+
+
+def test_tables_are_not_cut_when_the_output_is_not_a_terminal(workdir: Path) -> None:
+    """CliRunner's output is not a terminal (as ``battlab groups ... | cat``): every column of the 8-column
+    ranking table keeps its full header and values, no cell is cut to '…'."""
+    r = CliRunner().invoke(main, ["groups", str(workdir / "sens.h5"), "-k", "3", "--no-perturb", "-o", str(workdir)])
+    assert r.exit_code == 0, r.output
+    assert "…" not in r.stdout, r.stdout
+    lines = r.stdout.splitlines()
+    header = next(line for line in lines if "rank" in line and "parameter" in line)
+    for col in ("rank", "parameter", "symbol", "mean magnitude", "stacked QR", "group", "paper (Table 9)"):
+        assert col in header, header
+    assert "most collinear with" in " ".join(lines[lines.index(header) - 1 : lines.index(header) + 2]), lines
+    data = json.loads((workdir / "sens.groups.json").read_text())
+    for name in parameters.NAMES:  # each parameter's row whole: its name, symbol and its partner with the cosine
+        row = next(line for line in lines if f" {name} " in line and parameters.SPECS[name].symbol in line)
+        assert re.search(r"\b\w+ \([+-]\d\.\d{3}\)", row), row
+    assert len(data["groups"]) == 3
 
 
 def test_design_writes_a_loadable_plan_and_the_summary_contract(workdir: Path) -> None:
