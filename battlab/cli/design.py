@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from battlab.cli.console import make_console
-from battlab.io.paths import check_output_path
+from battlab.io.paths import check_output_path, summary_path
 from protocols.errors import InputError
 
 
@@ -105,7 +105,7 @@ def _print_sweep(console, rep) -> None:  # noqa: ANN001 (rich console, SweepRepo
         console.print(f"{rep.flagged} profiles flagged by the constraint screen (excluded from the design)")
     from battlab.design.workflow import sweep_summary
 
-    Path(rep.path).with_suffix(".summary.json").write_text(json.dumps(sweep_summary(rep), indent=1))
+    summary_path(rep.path).write_text(json.dumps(sweep_summary(rep), indent=1))
 
 
 _NOISE_OPTION = click.option(
@@ -281,8 +281,8 @@ def design(
 ) -> None:
     """Select M library profiles per parameter group (convex relaxation, rounding, checks) and write the plan.
 
-    Writes the plan TOML (whole experiment), one TOML per group, summary.json and <plan>.design.json beside it,
-    and a figure of the relaxed weights.
+    Writes the plan TOML (whole experiment), one TOML per group, the design's summary <plan>.summary.json beside
+    it, and a figure of the relaxed weights.
     """
     from battlab.design import workflow
 

@@ -1,4 +1,5 @@
-"""Output paths checked before a command does its work: the directory exists, the name has an accepted ending."""
+"""Output paths: checked before a command does its work (the directory exists, the name has an accepted ending),
+and the one name of a command's machine-readable summary, ``<output stem>.summary.json``."""
 
 from __future__ import annotations
 
@@ -34,9 +35,37 @@ def check_output_path(
     return path
 
 
+#: inner suffixes that belong to the format, not the name: ``cell.bpx.json`` and ``run.bdf.csv`` have stems
+#: ``cell`` and ``run``
+FORMAT_INFIXES = (".bpx", ".bdf")
+#: the suffix of every summary (and metadata sidecar) file
+SUMMARY_SUFFIX = ".summary.json"
+
+
+def output_stem(output: str | Path) -> str:
+    """The name an output's companions are named after: ``plan.toml`` → ``plan``, ``cell.bpx.json`` → ``cell``,
+    ``run.bdf.csv`` → ``run``, a directory ``validation`` → ``validation``."""
+    path = Path(output)
+    name = path.name or path.resolve().name
+    stem = name[: -len(Path(name).suffix)] if Path(name).suffix else name
+    for infix in FORMAT_INFIXES:
+        stem = stem.removesuffix(infix)
+    return stem or name
+
+
+def summary_path(output: str | Path, *, directory: bool = False) -> Path:
+    """The machine-readable summary (or metadata) of a command's output: ``<output stem>.summary.json`` beside a
+    file output, inside a directory output (``validation/validation.summary.json``); never a fixed name that the
+    next command writing to the same directory would replace."""
+    path = Path(output)
+    if directory:
+        return path / (output_stem(path) + SUMMARY_SUFFIX)
+    return path.with_name(output_stem(path) + SUMMARY_SUFFIX)
+
+
 def _either(suffixes: tuple[str, ...]) -> str:
     """'.a, .b or .c'."""
     return suffixes[0] if len(suffixes) == 1 else f"{', '.join(suffixes[:-1])} or {suffixes[-1]}"
 
 
-__all__ = ["check_output_path"]
+__all__ = ["SUMMARY_SUFFIX", "check_output_path", "output_stem", "summary_path"]
