@@ -287,6 +287,8 @@ def design(
     from battlab.design import workflow
 
     check_output_path(output, create=True)
+    if Path(output).suffix.lower() != ".toml":  # as write_plan requires, but before the design is computed
+        raise InputError(f"{output}: the plan is a .toml file")
     costs = None
     if costs_file:
         try:

@@ -88,3 +88,9 @@ def test_an_os_error_without_a_file_name_is_its_own_message_not_none() -> None:
     assert describe_os_error(FileNotFoundError(errno.ENOENT, "No such file or directory", "a/b.h5")) == (
         "a/b.h5: No such file or directory"
     )
+
+
+def test_design_refuses_a_plan_name_before_reading_the_store(tmp_path: Path) -> None:
+    r = CliRunner().invoke(main, ["design", str(tmp_path / "nostore.h5"), "-o", str(tmp_path / "plan.txt")])
+    assert r.exit_code == 2 and r.stderr.strip() == f"error: {tmp_path / 'plan.txt'}: the plan is a .toml file"
+    assert list(tmp_path.iterdir()) == []
