@@ -35,9 +35,18 @@ class _Main(click.Group):
         except InputError as exc:
             click.echo(f"error: {exc}", err=True)
             sys.exit(2)
-        except (FileNotFoundError, IsADirectoryError, PermissionError) as exc:
-            click.echo(f"error: {exc.filename}: {exc.strerror}", err=True)
+        except (FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError, FileExistsError) as exc:
+            click.echo(f"error: {describe_os_error(exc)}", err=True)
             sys.exit(2)
+
+
+def describe_os_error(exc: OSError) -> str:
+    """One line for a file-system error: 'PATH: reason'. Libraries (h5py, matplotlib) raise these without a
+    ``filename`` and with the path inside their own message; then that message is the line."""
+    if exc.filename is not None:
+        where = f"{exc.filename} -> {exc.filename2}" if exc.filename2 is not None else str(exc.filename)
+        return f"{where}: {exc.strerror or exc}"
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 @click.group(cls=_Main, context_settings={"help_option_names": ["-h", "--help"]})

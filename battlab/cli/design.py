@@ -8,6 +8,8 @@ from pathlib import Path
 
 import click
 
+from battlab.cli.console import make_console
+from battlab.io.paths import check_output_path, summary_path
 from protocols.errors import InputError
 
 
@@ -64,11 +66,10 @@ def sensitivity(
     Resumable: rerun the same command after an interruption and only the missing profiles are computed. A store
     made for another cell or model version is refused.
     """
-    from rich.console import Console
-
     from battlab.design import workflow
     from battlab.progress import RichBar
 
+    check_output_path(output, create=True)
     rep = workflow.sweep(
         library_path,
         cell_name,
@@ -81,7 +82,7 @@ def sensitivity(
         scheduler=scheduler,
         subscribers=[RichBar()] if progress else [],
     )
-    _print_sweep(Console(stderr=True), rep)
+    _print_sweep(make_console(stderr=True), rep)
 
 
 def _print_sweep(console, rep) -> None:  # noqa: ANN001 (rich console, SweepReport)
@@ -104,7 +105,7 @@ def _print_sweep(console, rep) -> None:  # noqa: ANN001 (rich console, SweepRepo
         console.print(f"{rep.flagged} profiles flagged by the constraint screen (excluded from the design)")
     from battlab.design.workflow import sweep_summary
 
-    Path(rep.path).with_suffix(".summary.json").write_text(json.dumps(sweep_summary(rep), indent=1))
+    summary_path(rep.path).write_text(json.dumps(sweep_summary(rep), indent=1))
 
 
 _NOISE_OPTION = click.option(
@@ -148,13 +149,14 @@ def groups(
     store_path: str, k: int, by: str, out_dir: str | None, perturb: bool, profile_id: int | None, unweighted: bool
 ) -> None:
     """Rank the parameters by orthogonalised sensitivity, group them, and compare with the paper's Table 9."""
-    from rich.console import Console
     from rich.table import Table
 
     from battlab import parameters
     from battlab.design import workflow
 
-    console = Console()
+    if out_dir is not None:
+        check_output_path(out_dir, directory=True, create=True)
+    console = make_console()
     rep = workflow.groups(
         store_path, k=k, by=by, out_dir=out_dir, perturb=perturb, profile_id=profile_id, unweighted=unweighted
     )
@@ -201,9 +203,7 @@ def groups(
 
 def _note(note: str | None) -> None:
     if note:
-        from rich.console import Console
-
-        Console(stderr=True).print(f"[yellow]note[/yellow]: {note}")
+        make_console(stderr=True).print(f"[yellow]note[/yellow]: {note}")
 
 
 @click.command("design")
@@ -281,13 +281,14 @@ def design(
 ) -> None:
     """Select M library profiles per parameter group (convex relaxation, rounding, checks) and write the plan.
 
-    Writes the plan TOML (whole experiment), one TOML per group, summary.json and <plan>.design.json beside it,
-    and a figure of the relaxed weights.
+    Writes the plan TOML (whole experiment), one TOML per group, the design's summary <plan>.summary.json beside
+    it, and a figure of the relaxed weights.
     """
-    from rich.console import Console
-
     from battlab.design import workflow
 
+    check_output_path(output, create=True)
+    if Path(output).suffix.lower() != ".toml":  # as write_plan requires, but before the design is computed
+        raise InputError(f"{output}: the plan is a .toml file")
     costs = None
     if costs_file:
         try:
@@ -313,7 +314,7 @@ def design(
         unweighted=unweighted,
     )
     _note(rep.note)
-    console = Console()
+    console = make_console()
     _print_design(console, rep.designs, rep.meta, rep.settings, rep.source, rep.n_candidates, rep.solve_seconds)
     files = rep.files
     console.print(f"wrote {files.plan}, {', '.join(str(p) for p in files.groups)}, {files.summary}, {rep.figure}")

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from battlab.io.paths import check_output_path
 from protocols import InputError, Library, Profile, Protocol
 from protocols.export import Format
 from protocols.export import export as export_to
@@ -67,6 +68,7 @@ def export(
     neware (BTS .xml), pybamm (module with experiment()), csv (Test Time / s, Current / A). A file the format
     cannot represent exactly is refused with what to change.
     """
+    check_output_path(out_dir, directory=True, create=True)
     f = Format.parse(fmt)
     obj = load_source(source, library_path)
     result = export_to(obj, f, out_dir, name=name, max_steps=max_steps, max_current_a=max_current)

@@ -1,16 +1,15 @@
 """``battlab fit`` and ``battlab validate``: thin shells over :mod:`battlab.identify.workflow` (identify a cell
 from logged data, score cells on held-out data).
 
-DATA: our HDF5 run logs (``.h5``), BDF CSV (``.csv``, optional ``.meta.json`` sidecar) or Panasonic ``.mat``.
+DATA: our HDF5 run logs (``.h5``), BDF CSV (``.csv``, optional ``.summary.json`` sidecar) or Panasonic ``.mat``.
 A slow test (|I| ≤ C/10 for at least 5 h) is taken as the OCV test for the equilibrium fit; the others are
-dynamic data. Outputs: the BPX cell (intervals and fit report under "User-defined") and ``summary.json`` next
-to it: ``{"parameters": {name: {"value", "ci95": [lo, hi], "at_bound"}}, "rmse_mV": {data: value},
+dynamic data. Outputs: the BPX cell (intervals and fit report under "User-defined") and ``<cell>.summary.json``
+next to it: ``{"parameters": {name: {"value", "ci95": [lo, hi], "at_bound"}}, "rmse_mV": {data: value},
 "converged": bool, ...}``.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import click
@@ -32,7 +31,7 @@ AMBIENT_OPTION = click.option(
     "--plan",
     type=click.Path(dir_okay=False),
     default=None,
-    help="Design plan (protocols TOML); its summary.json gives the parameter groups.",
+    help="Design plan (protocols TOML); its <plan>.summary.json gives the parameter groups.",
 )
 @click.option(
     "--params",
@@ -70,8 +69,9 @@ def fit(
 ) -> None:
     """Identify CELL's parameters from DATA (equilibrium from an OCV test, dynamics by weighted LM)."""
     from battlab.identify import workflow
+    from battlab.io import paths
 
-    out = Path(output)
+    out = paths.check_output_path(output, create=True)
     stem = out.name.removesuffix(".json").removesuffix(".bpx")
 
     def show(k: int, r: Any) -> None:
@@ -112,16 +112,16 @@ def fit(
             click.echo(
                 f"warning: weighted residual variance s² = {last.statistics.s2:.3g} >> 1: the residuals are "
                 "model error, not measurement noise (or the data come from another cell); the intervals of "
-                "eq. 44 are too narrow, summary.json also gives them scaled by s² (ci95_scaled)",
+                "eq. 44 are too narrow, the summary also gives them scaled by s² (ci95_scaled)",
                 err=True,
             )
         if not last.statistics.valid:
             click.echo(f"warning: {last.statistics.reason}", err=True)
-    summary_path = out.with_name("summary.json")
-    if plan is not None and Path(plan).with_name("summary.json").resolve() == summary_path.resolve():
+    summary_path = paths.summary_path(out)
+    if plan is not None and paths.summary_path(plan).resolve() == summary_path.resolve():
         click.echo(
-            f"warning: {summary_path} (the design's summary) is replaced by the fit's summary; write the "
-            "fitted cell to another directory to keep both",
+            f"warning: {summary_path} (the design's summary) is replaced by the fit's summary; give the fitted "
+            "cell another name than the plan to keep both",
             err=True,
         )
     bpx, summary = rep.write(out)
@@ -150,8 +150,9 @@ def parse_ambients(values: tuple[str, ...]) -> dict[str, float] | None:
 
 def _print_estimates(r: Any) -> None:
     """The final stage's estimates: value, 95 % interval, flags."""
-    from rich.console import Console
     from rich.table import Table
+
+    from battlab.cli.console import make_console
 
     t = Table(title=f"identified parameters (stage {r.stage}; s² = {r.statistics.s2:.3g})")
     for col in ("parameter", "value", "95 % interval", "note"):
@@ -165,7 +166,7 @@ def _print_estimates(r: Any) -> None:
         t.add_row(e.name, f"{e.value:.4g}", ci, note.strip())
     for i in r.statistics.invariants:
         t.add_row(i.name, f"{i.value:.4g}", f"[{i.ci95[0]:.4g}, {i.ci95[1]:.4g}]", f"invariant {i.definition}")
-    Console(width=110).print(t)
+    make_console().print(t)
 
 
 @click.command("validate")
@@ -181,7 +182,7 @@ def _print_estimates(r: Any) -> None:
     default="validation",
     show_default=True,
     type=click.Path(file_okay=False),
-    help="Directory for the figures and summary.json.",
+    help="Directory for the figures and the summary (<DIR>/<DIR>.summary.json).",
 )
 def validate(
     data: tuple[str, ...],
@@ -195,10 +196,12 @@ def validate(
     """Print the voltage RMSE of each CELL on each DATA file and save the figures (Figs. 7 and 9)."""
     from battlab.identify import workflow
     from battlab.identify.validation import format_table
+    from battlab.io.paths import check_output_path
 
+    check_output_path(output, directory=True, create=True)
     rep = workflow.validate(data, cells, soc0=soc0, ambient=parse_ambients(ambients), dt=dt, fix_sign=fix_sign)
     for w in rep.warnings:
         click.echo(f"warning: {w}", err=True)
     click.echo(format_table(rep.table, rep.coverage))
-    rep.write(output)
-    click.echo(f"figures and summary.json in {output}")
+    summary = rep.write(output)
+    click.echo(f"figures in {output}, summary {summary}")

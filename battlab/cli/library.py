@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from battlab.io.paths import check_output_path
 from protocols import InputError, Library, Profile
 from protocols.constants import RATED_CAPACITY_AH
 
@@ -35,6 +36,7 @@ def library() -> None:
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="HDF5 file to write.")
 def build(output: str) -> None:
     """Generate the library, print the count after each filter and the total duration, save it."""
+    check_output_path(output)
     t0 = time.perf_counter()
     lib = Library.build()
     t_build = time.perf_counter() - t0
@@ -91,9 +93,9 @@ def show(profile_id: int, library_path: str | None) -> None:
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None, help="PNG (default profile_<ID>.png).")
 def plot(profile_id: int, library_path: str | None, output: str | None) -> None:
     """PNG of current and SOC vs time for one profile."""
+    path = check_output_path(output or f"profile_{profile_id}.png")
     lib = _open(library_path)
     p = lib[profile_id]
-    path = Path(output or f"profile_{profile_id}.png")
     plot_profile(p, path)
     click.echo(f"wrote {path}")
 

@@ -16,6 +16,7 @@ from typing import Any
 
 import click
 
+from battlab.cli.options import physics_option
 from protocols.errors import InputError
 
 
@@ -82,20 +83,14 @@ def _logging(verbose: bool) -> None:
     help="Start SOC: of the virtual cell (virtual URLs), else recorded as the known start state.",
 )
 @click.option("--seed", type=int, default=0, show_default=True, help="Noise seed of the in-process virtual tester.")
-@click.option(
-    "--physics",
-    type=click.Choice(["dfn", "standin"]),
-    default="dfn",
-    show_default=True,
-    help="Cell physics of the in-process virtual tester (standin: the drivers' equivalent circuit).",
-)
+@physics_option(auto=False, default="dfn")
 @click.option(
     "--library",
     type=click.Path(dir_okay=False, path_type=Path),
     default=None,
     help="Profile library for library_id steps (default: the plan's, else the built-in one).",
 )
-@click.option("--quiet", is_flag=True, help="No progress display.")
+@click.option("--quiet", is_flag=True, help="No progress display (the result lines are always printed).")
 @click.option("-v", "--verbose", is_flag=True, help="Log state changes and retries.")
 def run(
     plan: Path,
@@ -114,8 +109,10 @@ def run(
     verbose: bool,
 ) -> None:
     """Run PLAN (a protocol TOML/JSON with an optional [run] table) on a cycler and a chamber, logging to -o."""
+    from battlab.io.paths import check_output_path
     from battlab.lab.session import VIRTUAL, RunSettings, start_run
 
+    check_output_path(output)
     _logging(verbose)
     is_virtual = VIRTUAL in (cycler_url.strip(), chamber_url.strip())
     if speed is not None and not is_virtual:
@@ -207,7 +204,7 @@ def show_run(run_id: int) -> None:
 @click.argument("run_id", type=int)
 @click.option("--cycler", "cycler_url", default=None, help="Override the cycler URL recorded for the run.")
 @click.option("--chamber", "chamber_url", default=None, help="Override the chamber URL recorded for the run.")
-@click.option("--quiet", is_flag=True, help="No progress display.")
+@click.option("--quiet", is_flag=True, help="No progress display (the result lines are always printed).")
 @click.option("-v", "--verbose", is_flag=True, help="Log state changes and retries.")
 def resume(run_id: int, cycler_url: str | None, chamber_url: str | None, quiet: bool, verbose: bool) -> None:
     """Resume run RUN_ID from its first step not completed (that step restarts from its beginning)."""

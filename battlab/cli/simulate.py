@@ -53,10 +53,9 @@ def simulate(
     PROFILE is a CSV with the columns 'Test Time / s' and 'Current / A' (positive = charge), or
     ``library:ID`` for a profile of the OED input library (which then also gives the start SOC).
     """
-    from rich.console import Console
-
     from battlab import parameters
     from battlab.cell import Cell
+    from battlab.cli.console import make_console
     from battlab.io.results import check_output_path, write_result
     from battlab.simulation import simulate as run
 
@@ -71,7 +70,7 @@ def simulate(
             raise InputError(f"{name} {value} degC is outside -40..80 degC")
     _check_current(prof, c, profile)
     limits = _v_limits(v_limits) if v_limits is not None else None
-    console = Console(stderr=True)
+    console = make_console(stderr=True)
     _announce_compiles()
     T0 = None if t0 is None else t0 + 273.15
     with console.status(f"simulating {Path(profile).name} on {c.name} ({prof.duration:.0f} s)"):

@@ -18,6 +18,7 @@ from typing import Any
 
 import click
 
+from battlab.cli.options import physics_option
 from drivers.scpi.dialects import DIALECTS
 from drivers.virtual.instruments import ChamberConfig
 from drivers.virtual.lab import LOOPBACK, VirtualLab, VirtualLabConfig
@@ -81,13 +82,7 @@ def virtual_tester() -> None:
     help="Virtual seconds per real second.",
 )
 @click.option("--cell", default="nca18650", show_default=True, help="Cell for battlab's physics factory.")
-@click.option(
-    "--physics",
-    type=click.Choice(["auto", "standin"]),
-    default="auto",
-    show_default=True,
-    help="auto: battlab.lab.virtual.make_cell_physics if available, else the stand-in; standin: always the stand-in.",
-)
+@physics_option(auto=True, default="auto")
 @click.option("--soc0", default=0.5, show_default=True, type=click.FloatRange(0.0, 1.0), help="Initial SOC.")
 @click.option("--ambient", default=25.0, show_default=True, type=float, help="Initial chamber air / degC.")
 @click.option(
@@ -131,9 +126,12 @@ def serve(
 ) -> None:
     """Serve the virtual instruments until Ctrl-C (or --duration)."""
     try:
-        cell_physics, physics_name = (
-            load_cell_physics(cell) if physics == "auto" else (EquivalentCircuitCell(), "stand-in (requested)")
-        )
+        if physics == "standin":
+            cell_physics, physics_name = EquivalentCircuitCell(), "stand-in (requested)"
+        else:
+            cell_physics, physics_name = load_cell_physics(cell)
+            if physics == "dfn" and physics_name == STANDIN:
+                raise InputError(f"--physics dfn: {STANDIN}; use --physics standin or auto")
     except InputError as exc:
         raise click.ClickException(str(exc)) from None
     T0 = ambient + 273.15

@@ -1,5 +1,5 @@
 """Write the design as a plan (:mod:`battlab.io.plan`): protocol TOML files that the runner, ``battlab export``
-and ``battlab fit --plan`` read, plus the design metadata in ``summary.json`` and ``<plan>.design.json``.
+and ``battlab fit --plan`` read, plus the design metadata in ``<plan>.summary.json``.
 
 ``plan.toml`` is the whole experiment: the selected profiles of group 1, then group 2, … each brought to its start
 SOC and rested (:func:`protocols.concatenate`); ``plan.group<k>.toml`` holds group k alone. Profile steps refer to
@@ -109,7 +109,7 @@ def write_plan(
     solve_seconds: float,
     extra: dict[str, Any] | None = None,
 ) -> PlanFiles:
-    """Write ``out`` (the whole plan), one TOML per group, ``summary.json`` and ``<out>.design.json``."""
+    """Write ``out`` (the whole plan), one TOML per group and the design's summary ``<out>.summary.json``."""
     out = Path(out)
     if out.suffix.lower() != ".toml":
         raise InputError(f"{out}: the plan is a .toml file")
@@ -122,7 +122,7 @@ def write_plan(
     desc = (
         f"{criterion}-optimal plan for cell {cell}: "
         + "; ".join(f"group {d.index} ({', '.join(d.new_parameters)}): profiles {d.selected}" for d in designs)
-        + f" (design metadata in {out.stem}.design.json)"
+        + f" (design metadata in {sidecar_path(out).name})"
     )
     whole = grouped_protocol(f"OED plan ({criterion}-optimal, {cell})", per_group, desc)
     _write(whole, out, ref)
@@ -147,11 +147,9 @@ def write_plan(
         **(extra or {}),
     )
     text = json.dumps(_jsonable(data), indent=1)
-    sp = out.with_name("summary.json")
+    sp = sidecar_path(out)  # the summary is the sidecar that design_groups reads back
     sp.write_text(text)
-    side = sidecar_path(out)
-    side.write_text(text)
-    return PlanFiles(out, tuple(group_paths), sp, side)
+    return PlanFiles(out, tuple(group_paths), sp, sp)
 
 
 def _check_round_trip(path: Path, profiles: Sequence[Profile], library: Any = None) -> None:

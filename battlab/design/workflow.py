@@ -233,7 +233,8 @@ def design(
     unweighted: bool = False,
 ) -> DesignReport:
     """Select ``M`` library profiles per parameter group (convex relaxation, rounding, checks; eqs. 26–35) and
-    write the plan TOML (whole experiment), one TOML per group, ``summary.json`` and a figure of the weights."""
+    write the plan TOML (whole experiment), one TOML per group, ``<plan>.summary.json`` and a figure of the
+    weights."""
     from battlab.design import figures as figs
     from battlab.design import groups as gd
     from battlab.design import identifiability, information

@@ -3,7 +3,7 @@
 ``fit`` takes logged data (our run logs, BDF CSV, Panasonic ``.mat``) and a start cell: a slow test (|I| ≤ C/10
 for at least 5 h) is the OCV test for the equilibrium fit (eqs. 10–21); the others are dynamic data for the
 weighted, group-wise Levenberg–Marquardt fit (eqs. 41–46). ``validate`` scores cells on held-out data. Both
-return report values that know how to write their products (the BPX cell and ``summary.json``; figures); they
+return report values that know how to write their products (the BPX cell and its ``.summary.json``; figures); they
 print nothing: stage results go to an ``on_stage`` callback and load warnings come back in the report.
 """
 
@@ -111,10 +111,12 @@ class FitReport:
         return self.results[-1] if self.results else None
 
     def write(self, output: str | Path) -> tuple[Path, Path]:
-        """The BPX cell (intervals and fit report under "User-defined") and ``summary.json`` beside it."""
+        """The BPX cell (intervals and fit report under "User-defined") and ``<cell>.summary.json`` beside it."""
+        from battlab.io.paths import summary_path as summary_of
+
         out = Path(output)
         self.cell.renamed(out.name.removesuffix(".json").removesuffix(".bpx")).to_bpx(out, **self.extra)
-        summary_path = out.with_name("summary.json")
+        summary_path = summary_of(out)
         summary_path.write_text(json.dumps(self.summary, indent=2, default=json_default))
         return out, summary_path
 
@@ -258,7 +260,7 @@ class ValidationReport:
     ended_by: dict[str, dict[str, str]] = field(default_factory=dict)
 
     def write(self, outdir: str | Path) -> Path:
-        """Figures (Figs. 7 and 9) and ``summary.json`` in ``outdir``."""
+        """Figures (Figs. 7 and 9) and ``<outdir>.summary.json`` in ``outdir``; returns the summary's path."""
         from battlab.identify.validation import plot_cdf, plot_validation
 
         outdir = Path(outdir)
@@ -266,7 +268,9 @@ class ValidationReport:
         for name, (e, preds) in self.predictions.items():
             plot_validation(e, preds, outdir / f"{name.replace('#', '_')}.png")
         plot_cdf(self.errors, outdir / "error_cdf.png", "validation: |voltage error|")
-        path = outdir / "summary.json"
+        from battlab.io.paths import summary_path
+
+        path = summary_path(outdir, directory=True)
         summary = {"rmse_mV": self.table, "coverage": self.coverage, "ended_by": self.ended_by}
         path.write_text(json.dumps(summary, indent=2, default=json_default))
         return path

@@ -1,4 +1,4 @@
-"""Battery Data Format CSV (``.bdf.csv``): import and export, with metadata in a ``<name>.meta.json`` sidecar.
+"""Battery Data Format CSV (``.bdf.csv``): import and export, with metadata in a ``<name>.summary.json`` sidecar.
 
 A BDF CSV is one header row of BDF column names (``Test Time / s``, ``Voltage / V``, ``Current / A`` required)
 and numbers; the reference package ``batterydf`` (``bdf.validate``) accepts what :func:`write_bdf_csv` writes.
@@ -14,13 +14,22 @@ from pathlib import Path
 import numpy as np
 
 from battlab.io.logged import REQUIRED, LoggedData
+from battlab.io.paths import output_stem, summary_path
 from protocols.errors import InputError
+
+#: the sidecar's name before summaries had one name (still read)
+LEGACY_SIDECAR_SUFFIX = ".meta.json"
 
 
 def sidecar(path: str | Path) -> Path:
-    """The metadata sidecar of a CSV: ``run.bdf.csv`` → ``run.meta.json``."""
+    """The metadata sidecar of a CSV: ``run.bdf.csv`` → ``run.summary.json``."""
+    return summary_path(path)
+
+
+def legacy_sidecar(path: str | Path) -> Path:
+    """The sidecar's older name, still read: ``run.bdf.csv`` → ``run.meta.json``."""
     path = Path(path)
-    return path.with_name(path.name.removesuffix(".csv").removesuffix(".bdf") + ".meta.json")
+    return path.with_name(output_stem(path) + LEGACY_SIDECAR_SUFFIX)
 
 
 def write_bdf_csv(data: LoggedData, path: str | Path) -> Path:
@@ -72,8 +81,8 @@ def read_bdf_csv(path: str | Path) -> LoggedData:
             raise InputError(f"{path}, line {k + 2}: column {name!r}: expected a number, got {df[name].iloc[k]!r}")
         cols[str(name).strip()] = values
     meta = {}
-    side = sidecar(path)
-    if side.is_file():
+    side = next((p for p in (sidecar(path), legacy_sidecar(path)) if p.is_file()), None)
+    if side is not None:
         try:
             meta = json.loads(side.read_text(encoding="utf-8"))
         except ValueError as exc:  # invalid JSON or not UTF-8 text

@@ -2,7 +2,7 @@
 
 Columns are named as in the Battery Data Format (``Test Time / s``, ``Voltage / V``, ``Current / A``, …);
 current is positive on charge; temperatures are in °C as logged. :func:`load_data` reads our HDF5 run log
-(``.h5``/``.hdf5``), a BDF CSV (``.csv``, with an optional ``<name>.meta.json`` sidecar) or a Panasonic
+(``.h5``/``.hdf5``), a BDF CSV (``.csv``, with an optional ``<name>.summary.json`` sidecar) or a Panasonic
 18650PF ``.mat`` file, and checks it (NaN, unsorted time, gaps, sign convention; see :mod:`battlab.io.checks`).
 """
 

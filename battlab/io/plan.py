@@ -17,9 +17,9 @@ table of run options (:class:`RunOptions`)::
     ...
 
 Plans say *what*; :mod:`battlab.lab.engine` decides how. ``battlab design`` writes the design metadata
-(parameter groups and the profiles selected for each) beside the plan in ``<plan>.design.json`` (and a copy in
-``summary.json``); :func:`design_groups` reads it back, and a plan without it is grouped by its profile steps'
-labels ('group N: …') with the paper's Table 9 groups.
+(parameter groups and the profiles selected for each) beside the plan in ``<plan>.summary.json``;
+:func:`design_groups` reads it back (or its older names ``<plan>.design.json`` and ``summary.json``), and a plan
+without it is grouped by its profile steps' labels ('group N: …') with the paper's Table 9 groups.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
+from battlab.io.paths import summary_path
 from protocols.errors import InputError
 from protocols.protocol import ProfileStep, Protocol, Step, read_table_file
 
@@ -174,9 +175,15 @@ class Plan:
 
 
 def sidecar_path(plan: str | Path) -> Path:
-    """``<plan>.design.json``: the design metadata written beside a plan."""
+    """``<plan>.summary.json``: the design metadata (the design's summary) written beside a plan."""
+    return summary_path(plan)
+
+
+def legacy_sidecar_paths(plan: str | Path) -> tuple[Path, Path]:
+    """The design metadata's older names, still read: ``<plan>.design.json``, then a ``summary.json`` beside the
+    plan (skipped when it is another command's summary, without 'groups')."""
     plan = Path(plan)
-    return plan.with_name(f"{plan.stem}.design.json")
+    return plan.with_name(f"{plan.stem}.design.json"), plan.with_name("summary.json")
 
 
 @dataclass(frozen=True)
@@ -188,18 +195,22 @@ class DesignGroup:
 
 
 def design_groups(plan: str | Path, *, library: Any = None) -> list[DesignGroup]:
-    """The groups of a design plan: from ``<plan>.design.json`` (else ``summary.json``) beside it, else from
-    the plan's profile steps labelled 'group N' with the paper's Table 9 groups. The plan itself must load
-    (with or without a ``[run]`` table)."""
+    """The groups of a design plan: from ``<plan>.summary.json`` beside it (else the older ``<plan>.design.json``
+    or ``summary.json``), else from the plan's profile steps labelled 'group N' with the paper's Table 9 groups.
+    The plan itself must load (with or without a ``[run]`` table)."""
     from battlab.parameters import TABLE9_GROUPS
 
     path = Path(plan)
     loaded = Plan.load(path, library=library)
-    for meta in (sidecar_path(path), path.with_name("summary.json")):
+    fixed = path.with_name("summary.json")
+    for meta in (sidecar_path(path), *legacy_sidecar_paths(path)):
         if not meta.is_file():
             continue
         try:
-            groups = json.loads(meta.read_text())["groups"]
+            data = json.loads(meta.read_text())
+            if meta == fixed and isinstance(data, dict) and "groups" not in data:
+                continue  # the fixed name was shared by every command: this one is not the design's
+            groups = data["groups"]
             return [DesignGroup(tuple(g["parameters"]), frozenset(str(s) for s in g["selected"])) for g in groups]
         except (KeyError, TypeError, json.JSONDecodeError) as exc:
             raise InputError(f"{meta}: expected the design summary with 'groups' ({exc})") from None

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from battlab.io import paths
 from battlab.simulation import Result
 from protocols.errors import InputError
 
@@ -41,16 +42,11 @@ SUFFIXES = (".bdf.csv", ".csv", ".h5", ".hdf5")
 
 def check_output_path(path: str | Path) -> Path:
     """An output path :func:`write_result` can write, checked before the work: suffix and directory."""
-    path = Path(path)
-    if not path.name.endswith(SUFFIXES):
-        raise InputError(f"{path}: output must end in .bdf.csv, .csv, .h5 or .hdf5")
-    if not path.parent.is_dir():
-        raise InputError(f"{path}: directory {path.parent} does not exist")
-    return path
+    return paths.check_output_path(path, SUFFIXES)
 
 
 def write_result(res: Result, path: str | Path, ambient_K: float, meta: dict[str, Any]) -> Path:
-    """Write ``.bdf.csv``/``.csv`` (with a JSON metadata sidecar ``<name>.meta.json``) or ``.h5``/``.hdf5``."""
+    """Write ``.bdf.csv``/``.csv`` (with a JSON metadata sidecar ``<name>.summary.json``) or ``.h5``/``.hdf5``."""
     path = Path(path)
     cols = result_columns(res, ambient_K)
     meta = {**meta, "ended_by": res.ended_by, "sensitivity_parameters": list(res.parameters)}
@@ -69,8 +65,6 @@ def write_result(res: Result, path: str | Path, ambient_K: float, meta: dict[str
         header = ",".join(cols)
         data = np.column_stack(list(cols.values()))
         np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.10g")
-        path.with_name(path.name.removesuffix(".csv").removesuffix(".bdf") + ".meta.json").write_text(
-            json.dumps(meta, indent=2)
-        )
+        paths.summary_path(path).write_text(json.dumps(meta, indent=2))
         return path
     raise InputError(f"{path}: output must end in .bdf.csv, .csv, .h5 or .hdf5")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -75,11 +76,29 @@ def test_groups_table_json_and_figure(workdir: Path) -> None:
     assert len(data["ranking"]["order_mean"]) == 18
 
 
+def test_tables_are_not_cut_when_the_output_is_not_a_terminal(workdir: Path) -> None:
+    """CliRunner's output is not a terminal (as ``battlab groups ... | cat``): every column of the 8-column
+    ranking table keeps its full header and values, no cell is cut to '…'."""
+    r = CliRunner().invoke(main, ["groups", str(workdir / "sens.h5"), "-k", "3", "--no-perturb", "-o", str(workdir)])
+    assert r.exit_code == 0, r.output
+    assert "…" not in r.stdout, r.stdout
+    lines = r.stdout.splitlines()
+    header = next(line for line in lines if "rank" in line and "parameter" in line)
+    for col in ("rank", "parameter", "symbol", "mean magnitude", "stacked QR", "group", "paper (Table 9)"):
+        assert col in header, header
+    assert "most collinear with" in " ".join(lines[lines.index(header) - 1 : lines.index(header) + 2]), lines
+    data = json.loads((workdir / "sens.groups.json").read_text())
+    for name in parameters.NAMES:  # each parameter's row whole: its name, symbol and its partner with the cosine
+        row = next(line for line in lines if f" {name} " in line and parameters.SPECS[name].symbol in line)
+        assert re.search(r"\b\w+ \([+-]\d\.\d{3}\)", row), row
+    assert len(data["groups"]) == 3
+
+
 def test_design_writes_a_loadable_plan_and_the_summary_contract(workdir: Path) -> None:
     plan = workdir / "out" / "plan.toml"
     r = CliRunner().invoke(main, ["design", str(workdir / "sens.h5"), "-o", str(plan), "-M", "2", "-k", "2"])
     assert r.exit_code == 0, r.output
-    summary = json.loads((plan.parent / "summary.json").read_text())
+    summary = json.loads((plan.with_name("plan.summary.json")).read_text())
     assert summary["criterion"] == "D" and summary["solve_seconds"] > 0
     assert len(summary["groups"]) == 2
     for g in summary["groups"]:
@@ -95,7 +114,9 @@ def test_design_writes_a_loadable_plan_and_the_summary_contract(workdir: Path) -
     assert (first.current == lib[first.id].current).all()
     for k in (1, 2):
         assert Protocol.load(plan.with_name(f"plan.group{k}.toml")).profile_duration_s == 1200.0
-    assert (plan.parent / "plan.design.json").is_file() and plan.with_suffix(".weights.png").is_file()
+    assert plan.with_suffix(".weights.png").is_file()
+    # one summary, named after the plan: no fixed summary.json for the next command to replace, no second copy
+    assert not (plan.parent / "summary.json").exists() and not (plan.parent / "plan.design.json").exists()
 
 
 def test_design_with_a_criterion_and_a_budget(workdir: Path) -> None:
@@ -118,7 +139,7 @@ def test_design_with_a_criterion_and_a_budget(workdir: Path) -> None:
         ],
     )
     assert r.exit_code == 0, r.output
-    s = json.loads((plan.parent / "summary.json").read_text())
+    s = json.loads((plan.with_name("plan.summary.json")).read_text())
     assert s["criterion"] == "A" and s["budget"] == 1300
     assert s["groups"][0]["cost_total"] <= 1300
 
@@ -163,5 +184,5 @@ def test_plan_is_self_contained_when_the_library_file_is_gone(workdir: Path, tmp
     assert r.exit_code == 0, r.output
     assert "library_id" not in plan.read_text() and "library =" not in plan.read_text()
     proto = Protocol.load(plan)
-    selected = json.loads((tmp_path / "summary.json").read_text())["groups"][0]["selected"]
+    selected = json.loads((tmp_path / "plan.summary.json").read_text())["groups"][0]["selected"]
     assert [s.profile.id for s in proto.steps if isinstance(s, ProfileStep)] == selected

@@ -20,7 +20,8 @@ def test_fit_and_validate(tmp_path, virtual_csv) -> None:
     out = tmp_path / "cell.bpx.json"
     r = CliRunner().invoke(main, ["fit", a, "--cell", "nca18650", "--params", "R_s_n,R_s_p", "-o", str(out)])
     assert r.exit_code == 0, r.output
-    summary = json.loads((tmp_path / "summary.json").read_text())
+    summary = json.loads((tmp_path / "cell.summary.json").read_text())
+    assert not (tmp_path / "summary.json").exists()
     assert set(summary["parameters"]) == {"R_s_n", "R_s_p"} and summary["converged"] is True
     for name, entry in summary["parameters"].items():
         lo, hi = entry["ci95"]
@@ -34,7 +35,7 @@ def test_fit_and_validate(tmp_path, virtual_csv) -> None:
     assert fitted["R_s_n"] == summary["parameters"]["R_s_n"]["value"]
     r = CliRunner().invoke(main, ["validate", b, "--cell", "nca18650", "--cell", str(out), "-o", str(tmp_path / "v")])
     assert r.exit_code == 0, r.output
-    table = json.loads((tmp_path / "v" / "summary.json").read_text())["rmse_mV"]
+    table = json.loads((tmp_path / "v" / "v.summary.json").read_text())["rmse_mV"]
     assert table["cell"]["p37"] < table["nca18650"]["p37"]
     assert (tmp_path / "v" / "error_cdf.png").is_file() and (tmp_path / "v" / "p37.png").is_file()
 
@@ -53,7 +54,8 @@ def test_bad_input_is_one_line(tmp_path) -> None:
 
 
 def test_fit_consumes_a_design_plan_summary(tmp_path, virtual_csv) -> None:
-    """``--plan``: the groups (parameters, selected profiles) come from the design's summary.json beside it."""
+    """``--plan``: the groups (parameters, selected profiles) come from the design's plan.summary.json beside it;
+    the fit's summary, named after the fitted cell, beside it too, replaces nothing."""
     import tomli_w
 
     from protocols.concatenate import concatenate
@@ -62,7 +64,7 @@ def test_fit_consumes_a_design_plan_summary(tmp_path, virtual_csv) -> None:
     lib = Library.build()
     plan = tmp_path / "plan.toml"
     plan.write_text(tomli_w.dumps(concatenate([lib[19], lib[37]], name="plan").protocol.to_dict()))
-    (tmp_path / "summary.json").write_text(
+    (tmp_path / "plan.summary.json").write_text(
         json.dumps(
             {
                 "groups": [
@@ -72,12 +74,11 @@ def test_fit_consumes_a_design_plan_summary(tmp_path, virtual_csv) -> None:
             }
         )
     )
-    (tmp_path / "fit").mkdir()
-    out = tmp_path / "fit" / "fitted.json"
+    out = tmp_path / "fitted.json"
     r = CliRunner().invoke(main, ["fit", a, b, "--cell", "nca18650", "--plan", str(plan), "-o", str(out)])
     assert r.exit_code == 0, r.output
-    assert "groups" in json.loads((tmp_path / "summary.json").read_text())  # the design's summary is kept
-    s = json.loads((tmp_path / "fit" / "summary.json").read_text())
+    assert "groups" in json.loads((tmp_path / "plan.summary.json").read_text())  # the design's summary is kept
+    s = json.loads((tmp_path / "fitted.summary.json").read_text())
     stages = s["stages"]
     assert [st["parameters"] for st in stages] == [["R_s_n"], ["R_s_n", "R_s_p"]]
     assert stages[0]["experiments"] == ["p19"] and stages[1]["experiments"] == ["p19", "p37"]

@@ -82,7 +82,8 @@ def test_bdf_csv_matches_the_api(nca18650: Cell, profile: Profile, profile_csv: 
     assert not any(c.startswith("dV/d") and c != "dV/dR_s_n / V" for c in table.columns)
     res = battlab.simulate(nca18650, profile, soc0=0.5, ambient=298.15, sensitivities=["R_s_n"])
     check_against_api({c: table[c].to_numpy() for c in table.columns}, res)
-    meta = json.loads((tmp_path / "out.meta.json").read_text())
+    meta = json.loads((tmp_path / "out.summary.json").read_text())
+    assert not (tmp_path / "out.meta.json").exists()
     assert meta["cell"] == "nca18650" and meta["soc0"] == 0.5 and meta["ended_by"] is None
     assert meta["sensitivity_parameters"] == ["R_s_n"] and meta["cell_hash"] == nca18650.hash()
     assert "out.bdf.csv" in result.stderr  # the summary line
@@ -122,7 +123,7 @@ def test_early_end_is_reported_and_written(nca18650: Cell, tmp_path: Path) -> No
     assert "V < 2.5" in result.stderr
     table = pd.read_csv(out)
     assert 10 < len(table) < 901 and table["Voltage / V"].min() >= 2.5
-    assert json.loads((tmp_path / "dis.meta.json").read_text())["ended_by"] == "V < 2.5"
+    assert json.loads((tmp_path / "dis.summary.json").read_text())["ended_by"] == "V < 2.5"
 
 
 def test_the_installed_command_runs(nca18650: Cell, profile: Profile, profile_csv: Path, tmp_path: Path) -> None:

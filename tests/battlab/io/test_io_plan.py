@@ -44,13 +44,27 @@ def test_the_design_sidecar_wins_over_summary_json_and_labels(tmp_path: Path, li
     path = tmp_path / "plan.toml"
     path.write_text(tomli_w.dumps(_labelled(lib, {1: [19, 37]}).to_dict()))
     summary = {"groups": [{"parameters": ["R_s_n"], "selected": [19]}]}
-    (tmp_path / "summary.json").write_text(json.dumps({"stages": []}))  # e.g. a fit's summary in the same folder
+    (tmp_path / "summary.json").write_text(json.dumps({"stages": []}))  # e.g. an old fit's summary in the folder
+    assert sidecar_path(path) == tmp_path / "plan.summary.json"
     sidecar_path(path).write_text(json.dumps(summary))
     groups = design_groups(path)
     assert len(groups) == 1 and groups[0].parameters == ("R_s_n",) and groups[0].selected == {"19"}
-    sidecar_path(path).unlink()
-    with pytest.raises(InputError, match=r"summary\.json: expected the design summary with 'groups'"):
+    sidecar_path(path).write_text(json.dumps({"stages": []}))  # the plan's own summary must be the design's
+    with pytest.raises(InputError, match=r"plan\.summary\.json: expected the design summary with 'groups'"):
         design_groups(path)
+    sidecar_path(path).unlink()
+    # the fixed summary.json of before is another command's when it has no groups: the labels give the groups
+    groups = design_groups(path)
+    assert groups[0].parameters == tuple(TABLE9_GROUPS[0]) and groups[0].selected == {"19", "37"}
+
+
+@pytest.mark.parametrize("legacy", ["plan.design.json", "summary.json"])
+def test_the_design_summary_s_older_names_are_read(tmp_path: Path, lib: Library, legacy: str) -> None:
+    path = tmp_path / "plan.toml"
+    path.write_text(tomli_w.dumps(_labelled(lib, {1: [19, 37]}).to_dict()))
+    (tmp_path / legacy).write_text(json.dumps({"groups": [{"parameters": ["k_n"], "selected": [37]}]}))
+    groups = design_groups(path)
+    assert len(groups) == 1 and groups[0].parameters == ("k_n",) and groups[0].selected == {"37"}
 
 
 def test_a_bad_run_table_names_the_file_and_field(tmp_path: Path, lib: Library) -> None:
