@@ -68,13 +68,34 @@ def fit(
     fix_sign: bool,
     output: str,
 ) -> None:
-    """Identify CELL's parameters from DATA (equilibrium from an OCV test, dynamics by weighted LM)."""
+    """Identify CELL's parameters from DATA (equilibrium from an OCV test, dynamics by weighted LM).
+
+    The result is written after every stage, marked partial until the last; a failing stage is one line naming
+    it and exit code 1, with the finished stages kept."""
+    import json
+    import sys
+
     from battlab.identify import workflow
+    from protocols.errors import InputError
 
     out = Path(output)
     stem = out.name.removesuffix(".json").removesuffix(".bpx")
+    summary_path = out.with_name("summary.json")
+    if plan is not None and Path(plan).with_name("summary.json").resolve() == summary_path.resolve():
+        click.echo(
+            f"warning: {summary_path} (the design's summary) is replaced by the fit's summary; write the "
+            "fitted cell to another directory to keep both",
+            err=True,
+        )
+    try:  # before the fit: each stage is written as it finishes
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"-o {out}: cannot create the directory {out.parent}: {exc.strerror}") from None
+    done = 0
 
     def show(k: int, r: Any) -> None:
+        nonlocal done
+        done = k
         c = r.convergence
         click.echo(
             f"stage {k}: {len(r.names)} parameters, {c.iterations} evaluations, cost {c.cost_start:.4g} "
@@ -82,20 +103,33 @@ def fit(
         )
         workflow.stage_figures(r, out.with_name(f"{stem}.stage{k}"))
 
-    rep = workflow.fit(
-        data,
-        cell_name,
-        plan=plan,
-        params=params,
-        ocp_terms=ocp_terms,
-        rated_capacity=rated_capacity,
-        soc0=soc0,
-        ambient=parse_ambients(ambients),
-        dt=dt,
-        max_iter=max_iter,
-        fix_sign=fix_sign,
-        on_stage=show,
-    )
+    try:
+        rep = workflow.fit(
+            data,
+            cell_name,
+            plan=plan,
+            params=params,
+            ocp_terms=ocp_terms,
+            rated_capacity=rated_capacity,
+            soc0=soc0,
+            ambient=parse_ambients(ambients),
+            dt=dt,
+            max_iter=max_iter,
+            fix_sign=fix_sign,
+            on_stage=show,
+            output=out,
+        )
+    except workflow.StageFailed as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(2 if isinstance(exc.cause, InputError) else 1)
+    except KeyboardInterrupt:
+        if done:
+            status = json.loads(summary_path.read_text()).get("status", f"stages 1–{done}")
+            kept = f"{status.removeprefix('partial: ')} kept (partial) in {out} and {summary_path}"
+        else:
+            kept = "no stage finished, nothing written"
+        click.echo(f"interrupted in stage {done + 1}; {kept}", err=True)
+        sys.exit(130)
     for w in rep.warnings:
         click.echo(f"warning: {w}", err=True)
     eq = rep.equilibrium
@@ -117,15 +151,7 @@ def fit(
             )
         if not last.statistics.valid:
             click.echo(f"warning: {last.statistics.reason}", err=True)
-    summary_path = out.with_name("summary.json")
-    if plan is not None and Path(plan).with_name("summary.json").resolve() == summary_path.resolve():
-        click.echo(
-            f"warning: {summary_path} (the design's summary) is replaced by the fit's summary; write the "
-            "fitted cell to another directory to keep both",
-            err=True,
-        )
-    bpx, summary = rep.write(out)
-    click.echo(f"wrote {bpx} and {summary}")
+    click.echo(f"wrote {out} and {summary_path}")
 
 
 def parse_ambients(values: tuple[str, ...]) -> dict[str, float] | None:
