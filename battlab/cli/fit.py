@@ -123,12 +123,14 @@ def fit(
         click.echo(f"error: {exc}", err=True)
         sys.exit(2 if isinstance(exc.cause, InputError) else 1)
     except KeyboardInterrupt:
-        if done:
-            status = json.loads(summary_path.read_text()).get("status", f"stages 1–{done}")
-            kept = f"{status.removeprefix('partial: ')} kept (partial) in {out} and {summary_path}"
+        status = json.loads(summary_path.read_text()).get("status", "") if done else ""
+        if status.startswith("complete"):  # while the last stage's figures were drawn
+            click.echo(f"interrupted after the fit; {status.removeprefix('complete: ')} written to {out}", err=True)
+        elif done:
+            kept = status.removeprefix("partial: ") or f"stages 1–{done}"
+            click.echo(f"interrupted in stage {done + 1}; {kept} kept (partial) in {out} and {summary_path}", err=True)
         else:
-            kept = "no stage finished, nothing written"
-        click.echo(f"interrupted in stage {done + 1}; {kept}", err=True)
+            click.echo(f"interrupted in stage 1; no stage finished, nothing written to {out}", err=True)
         sys.exit(130)
     for w in rep.warnings:
         click.echo(f"warning: {w}", err=True)
