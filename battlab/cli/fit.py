@@ -36,6 +36,8 @@ AMBIENT_OPTION = click.option(
 )
 @click.option(
     "--params",
+    "--groups",
+    "params",
     default="table9",
     show_default=True,
     help="Without a plan: 'table9' (paper's groups, cumulative), 'all', or comma-separated names.",

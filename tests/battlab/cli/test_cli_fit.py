@@ -164,3 +164,14 @@ def test_a_crash_in_a_stage_keeps_the_finished_stages(tmp_path, virtual_csv, mon
     for name, entry in summary["parameters"].items():
         assert fitted[name] == pytest.approx(entry["value"], rel=1e-12)
     assert (tmp_path / "new" / f"cell.stage{stage - 1}.error_cdf.png").is_file()
+
+
+def test_groups_is_another_name_for_params(tmp_path, virtual_csv) -> None:
+    a = virtual_csv(tmp_path, 19, 1)
+    out = tmp_path / "cell.bpx.json"
+    r = CliRunner().invoke(
+        main, ["fit", a, "--cell", "nca18650", "--groups", "R_s_n", "--max-iter", "2", "-o", str(out)]
+    )
+    assert r.exit_code == 0, r.output
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert list(summary["parameters"]) == ["R_s_n"] and summary["status"] == "complete: stage 1 of 1"
