@@ -35,6 +35,8 @@ AMBIENT_OPTION = click.option(
 )
 @click.option(
     "--params",
+    "--groups",
+    "params",
     default="table9",
     show_default=True,
     help="Without a plan: 'table9' (paper's groups, cumulative), 'all', or comma-separated names.",
@@ -67,14 +69,31 @@ def fit(
     fix_sign: bool,
     output: str,
 ) -> None:
-    """Identify CELL's parameters from DATA (equilibrium from an OCV test, dynamics by weighted LM)."""
+    """Identify CELL's parameters from DATA (equilibrium from an OCV test, dynamics by weighted LM).
+
+    The result is written after every stage, marked partial until the last; a failing stage is one line naming
+    it and exit code 1, with the finished stages kept."""
+    import json
+    import sys
+
     from battlab.identify import workflow
     from battlab.io import paths
+    from protocols.errors import InputError
 
     out = paths.check_output_path(output, create=True)
     stem = out.name.removesuffix(".json").removesuffix(".bpx")
+    summary_path = paths.summary_path(out)
+    if plan is not None and paths.summary_path(plan).resolve() == summary_path.resolve():
+        click.echo(
+            f"warning: {summary_path} (the design's summary) is replaced by the fit's summary; give the fitted "
+            "cell another name than the plan to keep both",
+            err=True,
+        )
+    done = 0
 
     def show(k: int, r: Any) -> None:
+        nonlocal done
+        done = k
         c = r.convergence
         click.echo(
             f"stage {k}: {len(r.names)} parameters, {c.iterations} evaluations, cost {c.cost_start:.4g} "
@@ -82,20 +101,35 @@ def fit(
         )
         workflow.stage_figures(r, out.with_name(f"{stem}.stage{k}"))
 
-    rep = workflow.fit(
-        data,
-        cell_name,
-        plan=plan,
-        params=params,
-        ocp_terms=ocp_terms,
-        rated_capacity=rated_capacity,
-        soc0=soc0,
-        ambient=parse_ambients(ambients),
-        dt=dt,
-        max_iter=max_iter,
-        fix_sign=fix_sign,
-        on_stage=show,
-    )
+    try:
+        rep = workflow.fit(
+            data,
+            cell_name,
+            plan=plan,
+            params=params,
+            ocp_terms=ocp_terms,
+            rated_capacity=rated_capacity,
+            soc0=soc0,
+            ambient=parse_ambients(ambients),
+            dt=dt,
+            max_iter=max_iter,
+            fix_sign=fix_sign,
+            on_stage=show,
+            output=out,
+        )
+    except workflow.StageFailed as exc:
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(2 if isinstance(exc.cause, InputError) else 1)
+    except KeyboardInterrupt:
+        status = json.loads(summary_path.read_text()).get("status", "") if done else ""
+        if status.startswith("complete"):  # while the last stage's figures were drawn
+            click.echo(f"interrupted after the fit; {status.removeprefix('complete: ')} written to {out}", err=True)
+        elif done:
+            kept = status.removeprefix("partial: ") or f"stages 1–{done}"
+            click.echo(f"interrupted in stage {done + 1}; {kept} kept (partial) in {out} and {summary_path}", err=True)
+        else:
+            click.echo(f"interrupted in stage 1; no stage finished, nothing written to {out}", err=True)
+        sys.exit(130)
     for w in rep.warnings:
         click.echo(f"warning: {w}", err=True)
     eq = rep.equilibrium
@@ -117,15 +151,7 @@ def fit(
             )
         if not last.statistics.valid:
             click.echo(f"warning: {last.statistics.reason}", err=True)
-    summary_path = paths.summary_path(out)
-    if plan is not None and paths.summary_path(plan).resolve() == summary_path.resolve():
-        click.echo(
-            f"warning: {summary_path} (the design's summary) is replaced by the fit's summary; give the fitted "
-            "cell another name than the plan to keep both",
-            err=True,
-        )
-    bpx, summary = rep.write(out)
-    click.echo(f"wrote {bpx} and {summary}")
+    click.echo(f"wrote {out}, {summary_path} and {out.with_name('summary.json')}")
 
 
 def parse_ambients(values: tuple[str, ...]) -> dict[str, float] | None:

@@ -109,7 +109,8 @@ def write_plan(
     solve_seconds: float,
     extra: dict[str, Any] | None = None,
 ) -> PlanFiles:
-    """Write ``out`` (the whole plan), one TOML per group and the design's summary ``<out>.summary.json``."""
+    """Write ``out`` (the whole plan), one TOML per group and the design's summary ``<out>.summary.json``, also as
+    ``summary.json`` (the name scripts read; the next command writing one in this directory replaces that copy)."""
     out = Path(out)
     if out.suffix.lower() != ".toml":
         raise InputError(f"{out}: the plan is a .toml file")
@@ -149,6 +150,7 @@ def write_plan(
     text = json.dumps(_jsonable(data), indent=1)
     sp = sidecar_path(out)  # the summary is the sidecar that design_groups reads back
     sp.write_text(text)
+    out.with_name("summary.json").write_text(text)  # the name scripts read (docs/file-formats.md)
     return PlanFiles(out, tuple(group_paths), sp, sp)
 
 

@@ -472,6 +472,18 @@ class Stage:
     experiments: tuple[Experiment, ...]
 
 
+class StageError(Exception):
+    """A stage of a group-wise fit failed: which one (1-based, of ``total``), the results of the stages before it
+    (finished, in order) and the exception that ended it (also ``__cause__``)."""
+
+    def __init__(self, stage: int, total: int, names: Sequence[str], done: Sequence[FitResult], cause: Exception):
+        self.stage, self.total, self.names = stage, total, tuple(names)
+        self.done, self.cause = list(done), cause
+        what = " ".join(str(cause).split())  # one line, whatever the cause's text
+        what = what if isinstance(cause, InputError) else f"{type(cause).__name__}: {what}"
+        super().__init__(f"stage {stage} of {total} ({len(self.names)} parameters) failed: {what}")
+
+
 def fit_groupwise(
     cell: Cell,
     stages: Sequence[Stage],
@@ -482,7 +494,10 @@ def fit_groupwise(
 ) -> list[FitResult]:
     """Cumulative group-wise fit: stage k fits groups 1..k on the experiments of stages 1..k.
 
-    ``progress``: optional callable ``(stage, FitResult)`` called after each stage.
+    ``progress``: optional callable ``(stage, FitResult)`` called after each stage, before the next one starts (to
+    keep each finished stage). An exception in stage k (its fit or its ``progress`` call) is raised as a
+    :class:`StageError` that carries the results of stages 1..k − 1; an interrupt (``KeyboardInterrupt``) passes
+    through unchanged.
     """
     fm = forward or ForwardModel(cell)
     current = cell
@@ -492,9 +507,12 @@ def fit_groupwise(
     for k, stg in enumerate(stages, start=1):
         names += [n for n in stg.names if n not in names]
         exps += list(stg.experiments)
-        res = fit(cell, exps, names, options=options, forward=fm, start=current, stage=k)
+        try:
+            res = fit(cell, exps, names, options=options, forward=fm, start=current, stage=k)
+            if callable(progress):
+                progress(k, res)
+        except Exception as exc:
+            raise StageError(k, len(stages), names, results, exc) from exc
         results.append(res)
         current = res.cell
-        if callable(progress):
-            progress(k, res)
     return results

@@ -66,7 +66,10 @@ def invariants(
     """The invariants of each complete electrode with their 95 % intervals (delta method in log space).
 
     ``covariance`` (p, p) in θ̄ must be valid for estimable functions (e.g. the pseudo-inverse of JᵀWJ); the
-    invariants are estimable because their gradients are orthogonal to the orbit.
+    invariants are estimable because their gradients are orthogonal to the orbit. Each interval is intersected
+    with the range the identification bounds allow (:func:`bounds_range`): a parameter the data barely move (a
+    rate constant at its bound, σ̄ of order 10²) gives a log-space half-width of hundreds, whose ends are beyond
+    floating point and say no more than the bounds do.
     """
     names = list(names)
     out: dict[str, Invariant] = {}
@@ -82,11 +85,24 @@ def invariants(
                 g[k] = a * spec.dvalue_dnormalised(v) / v  # d log(inv) / d θ̄
             var = float(g @ covariance @ g)
             half = t_value * math.sqrt(var) if np.isfinite(var) and var >= 0 else math.inf
-            lo = math.exp(log_v - half) if np.isfinite(half) else 0.0
-            hi = math.exp(log_v + half) if np.isfinite(half) else math.inf
+            log_lo, log_hi = (math.log(b) for b in bounds_range(powers))
+            # within the bounds' range, and never excluding the estimate itself (a start outside the bounds)
+            lo = math.exp(min(log_v, max(log_v - half, log_lo)))
+            hi = math.exp(max(log_v, min(log_v + half, log_hi)))
             definition = " · ".join(f"{n}^{a}" if a != 1 else n for n, a in powers.items())
             out[inv] = Invariant(inv, math.exp(log_v), (lo, hi), definition)
     return out
+
+
+def bounds_range(powers: dict[str, int]) -> tuple[float, float]:
+    """The range of a product of powers ∏ θ_n^a when every θ_n lies within its identification bounds."""
+    lo = hi = 1.0
+    for n, a in powers.items():
+        spec = parameters.spec(n)
+        small, large = (spec.lower, spec.upper) if a > 0 else (spec.upper, spec.lower)
+        lo *= small**a
+        hi *= large**a
+    return lo, hi
 
 
 def orbit_intervals(invs: dict[str, Invariant], electrodes: Sequence[str]) -> dict[str, tuple[float, float]]:

@@ -9,7 +9,9 @@ print nothing: stage results go to an ``on_stage`` callback and load warnings co
 
 from __future__ import annotations
 
+import copy
 import json
+import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -111,14 +113,56 @@ class FitReport:
         return self.results[-1] if self.results else None
 
     def write(self, output: str | Path) -> tuple[Path, Path]:
-        """The BPX cell (intervals and fit report under "User-defined") and ``<cell>.summary.json`` beside it."""
+        """The BPX cell (intervals and fit report under "User-defined"), ``<cell>.summary.json`` beside it and the
+        same summary as ``summary.json`` (the name scripts read: docs/file-formats.md).
+
+        Each file is written to a temporary name and renamed over the old one, so a crash while writing leaves
+        the previous version (e.g. the last finished stage) whole."""
         from battlab.io.paths import summary_path as summary_of
 
         out = Path(output)
-        self.cell.renamed(out.name.removesuffix(".json").removesuffix(".bpx")).to_bpx(out, **self.extra)
+        tmp = out.with_name(f".{out.name}.tmp")
+        self.cell.renamed(out.name.removesuffix(".json").removesuffix(".bpx")).to_bpx(tmp, **self.extra)
+        os.replace(tmp, out)
         summary_path = summary_of(out)
-        summary_path.write_text(json.dumps(self.summary, indent=2, default=json_default))
+        text = json.dumps(self.summary, indent=2, default=json_default)
+        for path in (summary_path, out.with_name("summary.json")):
+            tmp = path.with_name(f".{path.name}.tmp")
+            tmp.write_text(text)
+            os.replace(tmp, path)
         return out, summary_path
+
+
+def stages_text(done: int, total: int) -> str:
+    """``"stage 1 of 4"`` or ``"stages 1–3 of 4"``."""
+    return f"stage 1 of {total}" if done == 1 else f"stages 1–{done} of {total}"
+
+
+class StageFailed(Exception):
+    """``fit`` failed in a stage: the stage (1-based, of ``total``), its cause, the report of the finished stages
+    (partial), the files the last of them was written to and how many stages those hold (None, 0: nothing
+    written)."""
+
+    def __init__(
+        self,
+        stage: int,
+        total: int,
+        cause: Exception,
+        report: FitReport,
+        written: tuple[Path, Path] | None,
+        kept: int,
+    ) -> None:
+        self.stage, self.total, self.cause, self.report = stage, total, cause, report
+        self.written, self.kept = written, kept
+        what = " ".join(str(cause).split())  # one line, whatever the cause's text
+        what = what if isinstance(cause, InputError) else f"{type(cause).__name__}: {what}"
+        if written is not None and kept:
+            where = f"{stages_text(kept, total)} kept (partial) in {written[0]} and {written[1]}"
+        elif report.results:
+            where = f"{stages_text(len(report.results), total)} finished, nothing written (no output given)"
+        else:
+            where = "no stage finished, nothing written"
+        super().__init__(f"fit failed in stage {stage} of {total}: {what}; {where}")
 
 
 def fit(
@@ -135,10 +179,16 @@ def fit(
     max_iter: int = 40,
     fix_sign: bool = False,
     on_stage: Callable[[int, Any], None] | None = None,
+    output: str | Path | None = None,
 ) -> FitReport:
     """Identify the cell's parameters from logged data: equilibrium from an OCV test, then the dynamic
     parameters by weighted LM, group by group and cumulatively (stages from ``plan`` or ``params``).
-    ``ambient`` [K]: for data that do not log it (see :data:`Ambient`); such data are refused otherwise."""
+    ``ambient`` [K]: for data that do not log it (see :data:`Ambient`); such data are refused otherwise.
+
+    ``output`` (the BPX path; ``summary.json`` beside it): the report is written there after every stage, before
+    ``on_stage`` is called, marked partial (``summary["partial"]`` True, ``"status": "stages 1–3 of 4"``,
+    ``"converged"`` False; the BPX's fit report says the same) until the last stage, and then complete. A failure
+    in a stage raises :class:`StageFailed` naming it, with the finished stages kept on disk."""
     from battlab.identify import fit as F
     from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
     from battlab.identify.experiments import experiments_from_data
@@ -152,6 +202,8 @@ def fit(
     summary: dict[str, Any] = {"parameters": {}, "rmse_mV": {}, "converged": True}
     extra: dict[str, Any] = {}
     report = FitReport(cell, summary, extra, warnings=warned)
+    written: tuple[Path, Path] | None = None  # where the last finished stage was written
+    kept = 0  # the stages written there
     if ocv:
         d = ocv[0]
         eq = fit_equilibrium(
@@ -176,20 +228,42 @@ def fit(
             e for d in dyn for e in experiments_from_data(d, cell, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
         ]
         fm = ForwardModel(cell, v_margin=0.15)
-        results = F.fit_groupwise(
-            cell, stages(params, plan, exps), options=F.Options(max_nfev=max_iter), forward=fm, progress=on_stage
-        )
-        report.results = results
-        cell = results[-1].cell
-        _summarise_dynamic(results, summary, extra)
-    report.cell = cell
+        plan_stages = stages(params, plan, exps)
+        base_summary, base_extra = copy.deepcopy(summary), copy.deepcopy(extra)
+
+        def stage_done(k: int, res: Any) -> None:
+            nonlocal written, kept
+            report.results.append(res)
+            report.cell = res.cell
+            report.summary, report.extra = copy.deepcopy(base_summary), copy.deepcopy(base_extra)
+            _summarise_dynamic(report.results, report.summary, report.extra, len(plan_stages))
+            if output is not None:
+                written, kept = report.write(output), k
+            if on_stage is not None:
+                on_stage(k, res)
+
+        report.cell = cell  # the start of the dynamic fit, until a stage finishes
+        try:
+            F.fit_groupwise(cell, plan_stages, options=F.Options(max_nfev=max_iter), forward=fm, progress=stage_done)
+        except F.StageError as exc:
+            raise StageFailed(exc.stage, exc.total, exc.cause, report, written, kept) from exc.cause
+    else:
+        report.cell = cell
+    if output is not None and written is None:  # no stage: the equilibrium fit (or the start cell) alone
+        report.write(output)
     return report
 
 
-def _summarise_dynamic(results: list[Any], summary: dict[str, Any], extra: dict[str, Any]) -> None:
+def _summarise_dynamic(results: list[Any], summary: dict[str, Any], extra: dict[str, Any], total: int) -> None:
+    """The summary and BPX metadata of the finished stages ``results`` of ``total``: partial until the last."""
     last = results[-1]
     st = last.statistics
-    summary["converged"] = bool(summary["converged"] and all(r.convergence.converged for r in results))
+    partial = len(results) < total
+    stages_converged = all(r.convergence.converged for r in results)
+    summary["converged"] = bool(summary["converged"] and stages_converged and not partial)
+    summary["partial"] = partial
+    summary["status"] = ("partial: " if partial else "complete: ") + stages_text(len(results), total)
+    summary["stages_done"], summary["stages_total"] = len(results), total
     for e in st.estimates:
         summary["parameters"][e.name] = {
             "value": e.value,
@@ -210,6 +284,10 @@ def _summarise_dynamic(results: list[Any], summary: dict[str, Any], extra: dict[
         extra["null_space"] = [dict(d) for d in st.null_space]
     extra["at_bound"] = {e.name: e.at_bound is not None for e in st.estimates}
     extra["fit_report"] = {
+        "status": summary["status"],
+        "partial": partial,
+        "stages_done": len(results),
+        "stages_total": total,
         "converged": summary["converged"],
         "iterations": last.convergence.iterations,
         "cost": last.convergence.cost,

@@ -115,8 +115,9 @@ def test_design_writes_a_loadable_plan_and_the_summary_contract(workdir: Path) -
     for k in (1, 2):
         assert Protocol.load(plan.with_name(f"plan.group{k}.toml")).profile_duration_s == 1200.0
     assert plan.with_suffix(".weights.png").is_file()
-    # one summary, named after the plan: no fixed summary.json for the next command to replace, no second copy
-    assert not (plan.parent / "summary.json").exists() and not (plan.parent / "plan.design.json").exists()
+    # the summary named after the plan, and the same as summary.json (the contract's name), no other copy
+    assert json.loads((plan.parent / "summary.json").read_text()) == summary
+    assert not (plan.parent / "plan.design.json").exists()
 
 
 def test_design_with_a_criterion_and_a_budget(workdir: Path) -> None:

@@ -84,3 +84,35 @@ def test_fit_of_a_whole_orbit_reports_invariants_and_set_identified_intervals() 
         assert lo <= P.SPECS[e.name].truth <= hi
     rep = res.report()
     assert set(rep["invariants"]) == {"tau_n", "kappa_n", "rho_n"}
+
+
+def test_invariant_of_a_parameter_the_data_do_not_determine_is_bounded_not_overflowing() -> None:
+    """A real stage-4 result (``battlab fit`` with the table9 groups on 600 s of 10-s pulses from the virtual truth,
+    seed 5): k_p has next to no sensitivity, the pseudo-inverse gives it σ̄ = 186 in θ̄, so κ_p = k_p/R_s_p's
+    log-space half-width is about 1700 and the interval's upper end once overflowed (OverflowError after the whole
+    fit). The data then say what the bounds say: κ_p's interval is the range the bounds allow, the well-determined
+    τ_p keeps its own interval, and the orbit intervals stay inside the bounds."""
+    names = ["R_s_p", "D_s_p", "k_p", "R_f_p"]
+    th = np.array([0.2072541, 0.7844563, 0.8626492, 0.9997538])
+    cov = np.array(  # the pseudo-inverse of JᵀWJ, this electrode's block (θ̄)
+        [
+            [1.124396e-04, 1.080091e-04, -1.059189e00, 4.297873e-02],
+            [1.080091e-04, 1.204232e-04, -1.147875e00, 4.402882e-02],
+            [-1.059189e00, -1.147875e00, 3.475320e04, -4.260425e02],
+            [4.297873e-02, 4.402882e-02, -4.260425e02, 1.687967e01],
+        ]
+    )
+    invs = symmetry.invariants(names, th, cov, 1.9640413774963483)
+    assert set(invs) == {"tau_p", "kappa_p", "rho_p"}
+    allowed = (P.SPECS["k_p"].lower / P.SPECS["R_s_p"].upper, P.SPECS["k_p"].upper / P.SPECS["R_s_p"].lower)
+    assert invs["kappa_p"].ci95 == pytest.approx(allowed, rel=1e-9)
+    assert symmetry.bounds_range(symmetry.INVARIANTS["p"]["kappa_p"]) == pytest.approx(allowed, rel=1e-12)
+    lo_t, hi_t = invs["tau_p"].ci95
+    assert 1.0 < hi_t / lo_t < 1.3  # τ_p is well determined: its own interval, not the bounds' range
+    for inv in invs.values():
+        assert np.isfinite(inv.ci95).all() and 0 < inv.ci95[0] <= inv.value <= inv.ci95[1]
+    orbit = symmetry.orbit_intervals(invs, ["p"])
+    for k, n in enumerate(names):
+        value = P.SPECS[n].denormalise(float(th[k]))
+        lo, hi = orbit[n]
+        assert P.SPECS[n].lower <= lo <= value * (1 + 1e-9) and value * (1 - 1e-9) <= hi <= P.SPECS[n].upper

@@ -1,0 +1,73 @@
+"""``battlab.workflow.fit`` keeps each finished stage: written as it finishes, partial until the last."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+import battlab
+from battlab.identify import fit as F
+from battlab.identify import workflow
+
+
+def crash_in_stage(monkeypatch: pytest.MonkeyPatch, stage: int, exc: BaseException) -> None:
+    """Make the fit of ``stage`` raise ``exc`` (a crash, e.g. an overflow, or Ctrl-C); the others run as usual."""
+    real = F.fit
+
+    def fit(*args: object, **kwargs: object) -> F.FitResult:
+        if kwargs.get("stage") == stage:
+            raise exc
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(F, "fit", fit)
+
+
+def test_a_crash_in_stage_2_keeps_stage_1_on_disk(tmp_path: Path, virtual_csv, monkeypatch) -> None:
+    data = virtual_csv(tmp_path, 19, 1)
+    crash_in_stage(monkeypatch, 2, OverflowError("math range error"))
+    out = tmp_path / "out" / "cell.bpx.json"
+    seen: list[int] = []
+    with pytest.raises(workflow.StageFailed) as info:
+        workflow.fit([data], "nca18650", params="table9", max_iter=4, output=out, on_stage=lambda k, r: seen.append(k))
+    exc = info.value
+    assert (exc.stage, exc.total, exc.kept, seen) == (2, 4, 1, [1])
+    assert isinstance(exc.cause, OverflowError) and exc.written == (out, out.with_name("cell.summary.json"))
+    text = str(exc)
+    assert "\n" not in text and text.startswith("fit failed in stage 2 of 4: OverflowError: math range error")
+    assert f"stage 1 of 4 kept (partial) in {out}" in text
+    summary = json.loads(out.with_name("summary.json").read_text())
+    assert summary["partial"] is True and summary["status"] == "partial: stage 1 of 4"
+    assert (summary["stages_done"], summary["stages_total"], summary["converged"]) == (1, 4, False)
+    assert [s["parameters"] for s in summary["stages"]] == [["R_s_n", "R_s_p"]]
+    fitted = battlab.Cell.from_bpx(out)  # loadable, and it is stage 1's cell
+    stage1 = exc.report.results[0]
+    for name in ("R_s_n", "R_s_p"):
+        assert fitted[name] == pytest.approx(stage1.cell[name], rel=1e-12)
+        assert summary["parameters"][name]["value"] == pytest.approx(stage1.cell[name], rel=1e-12)
+    assert "partial: stage 1 of 4" in json.loads(out.read_text())["Header"]["Description"]
+    assert sorted(p.name for p in out.parent.iterdir()) == ["cell.bpx.json", "cell.summary.json", "summary.json"]  # no temporary left
+
+
+def test_each_stage_is_written_as_it_finishes_and_the_last_is_complete(tmp_path: Path, virtual_csv) -> None:
+    data = virtual_csv(tmp_path, 19, 1)
+    out = tmp_path / "cell.bpx.json"
+    status: list[tuple[str, int]] = []
+
+    def on_stage(k: int, r: F.FitResult) -> None:  # the file on disk when stage k's callback runs
+        s = json.loads(out.with_name("summary.json").read_text())
+        status.append((s["status"], len(s["stages"])))
+        assert battlab.Cell.from_bpx(out)["R_s_n"] == pytest.approx(r.cell["R_s_n"], rel=1e-12)
+
+    rep = workflow.fit([data], "nca18650", params="table9", max_iter=2, output=out, on_stage=on_stage)
+    assert status == [
+        ("partial: stage 1 of 4", 1),
+        ("partial: stages 1–2 of 4", 2),
+        ("partial: stages 1–3 of 4", 3),
+        ("complete: stages 1–4 of 4", 4),
+    ]
+    final = json.loads(out.with_name("summary.json").read_text())
+    assert final["partial"] is False and final == json.loads(json.dumps(rep.summary, default=workflow.json_default))
+    assert final["converged"] == all(s["converged"] for s in final["stages"])
+    assert "complete: stages 1–4 of 4" in json.loads(out.read_text())["Header"]["Description"]
