@@ -47,7 +47,8 @@ def test_a_crash_in_stage_2_keeps_stage_1_on_disk(tmp_path: Path, virtual_csv, m
         assert fitted[name] == pytest.approx(stage1.cell[name], rel=1e-12)
         assert summary["parameters"][name]["value"] == pytest.approx(stage1.cell[name], rel=1e-12)
     assert "partial: stage 1 of 4" in json.loads(out.read_text())["Header"]["Description"]
-    assert sorted(p.name for p in out.parent.iterdir()) == ["cell.bpx.json", "cell.summary.json", "summary.json"]  # no temporary left
+    written = sorted(p.name for p in out.parent.iterdir())
+    assert written == ["cell.bpx.json", "cell.summary.json", "summary.json"]  # no temporary left
 
 
 def test_each_stage_is_written_as_it_finishes_and_the_last_is_complete(tmp_path: Path, virtual_csv) -> None:
