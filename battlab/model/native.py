@@ -24,7 +24,7 @@ import tempfile
 import threading
 import time
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
@@ -250,6 +250,9 @@ class NativeStepper:
         # pointers as addresses: the arrays are contiguous (float64, int32 where the C code reads int)
         self.lib.bl_run.argtypes = [P, P, I_, P, P, P, P, P, P, I_, P, P, P, I_, P, P, P, P, I_, D, I_]
         self.lib.bl_run.argtypes += [P] * 11
+        self.lib.bl_adapt.restype = _INT
+        self.lib.bl_adapt.argtypes = [P, P, I_, P, P, P, P, D, I_, P, P, P, P, P, P, P, P, P, I_, D, I_, P]
+        self.lib.bl_adapt.argtypes += [P] * 12 + [I_, P, P, P]
         self._jth_colptr = np.ascontiguousarray(self.jth_sp.colind(), dtype=np.int32)
         self._jth_row = np.ascontiguousarray(self.jth_sp.row(), dtype=np.int32)
         self._base: OrderedDict[bytes, PivotSet] = OrderedDict()
@@ -384,6 +387,100 @@ class NativeStepper:
         samples.next = int(ints[0])
         return int(done), int(ints[1]), int(ints[2])
 
+    def adapt(
+        self,
+        pivots: PivotSet,
+        segments: StepPlan,
+        samples: SamplePlan,
+        control: AdaptiveControl,
+        th: np.ndarray,
+        sel: np.ndarray,
+        y: np.ndarray,
+        xp: np.ndarray,
+        S: np.ndarray,
+        Sp: np.ndarray,
+        out: np.ndarray,
+        outdV: np.ndarray,
+        outdT2: np.ndarray,
+        limits: np.ndarray,
+        tol: float = 1e-9,
+        maxit: int = 20,
+    ) -> tuple[int, int, int]:
+        """Error-controlled steps over ``segments`` (one per stretch of constant current: h the duration, ω = 0 to
+        restart, t_end its end), recording the accepted steps in ``control``; returns (segments done, code,
+        Newton iterations) with the codes of :meth:`run` and -6 (``control``'s plan is full: grow it, call again)."""
+        ns = len(sel)
+        d = lambda x: np.ascontiguousarray(x, dtype=np.float64).ctypes.data  # noqa: E731
+        ints = np.array([samples.next, 0, 0, control.n], dtype=np.int32)  # next sample, code, iterations, steps
+        Sy = np.zeros(self.model.layout.ny * max(ns, 1))
+        a = ints.ctypes.data
+        assert samples.yhist is not None and samples.yhist.size == 3 * self.model.layout.ny
+        done = self.lib.bl_adapt(
+            ctypes.addressof(pivots.step.problem),
+            ctypes.addressof(pivots.zero.problem),
+            segments.h.size,
+            segments.h.ctypes.data,
+            segments.w.ctypes.data,
+            segments.current.ctypes.data,
+            segments.t_end.ctypes.data,
+            float(segments.T_amb[0]) if segments.h.size else 298.15,
+            samples.t.size,
+            samples.t.ctypes.data,
+            samples.current.ctypes.data,
+            a,
+            samples.yhist.ctypes.data,
+            samples.Shist.ctypes.data if ns else None,
+            control.state.ctypes.data,
+            control.settings.ctypes.data,
+            d(th),
+            np.ascontiguousarray(sel, dtype=np.int32).ctypes.data,
+            ns,
+            tol,
+            maxit,
+            d(limits),
+            y.ctypes.data,
+            xp.ctypes.data,
+            S.ctypes.data,
+            Sp.ctypes.data,
+            Sy.ctypes.data,
+            out.ctypes.data,
+            outdV.ctypes.data,
+            outdT2.ctypes.data,
+            control.h.ctypes.data,
+            control.w.ctypes.data,
+            control.current.ctypes.data,
+            control.t_end.ctypes.data,
+            control.h.size,
+            a + 12,
+            a + 4,
+            a + 8,
+        )
+        samples.next = int(ints[0])
+        control.n = int(ints[3])
+        return int(done), int(ints[1]), int(ints[2])
+
+
+@dataclass
+class AdaptiveControl:
+    """The state of error-controlled stepping kept between ``bl_adapt`` calls, and the steps it accepted (a plan
+    that ``bl_run`` replays)."""
+
+    settings: np.ndarray  # rtol, atol, hmax [s], growth, dt_first [s]
+    state: np.ndarray = field(default_factory=lambda: np.zeros(6))  # t, next h, h1, h2, steps in segment, inside
+    h: np.ndarray = field(default_factory=lambda: np.zeros(1024))
+    w: np.ndarray = field(default_factory=lambda: np.zeros(1024))
+    current: np.ndarray = field(default_factory=lambda: np.zeros(1024))
+    t_end: np.ndarray = field(default_factory=lambda: np.zeros(1024))
+    n: int = 0
+
+    def grow(self) -> None:
+        """Twice the room for accepted steps."""
+        for name in ("h", "w", "current", "t_end"):
+            old = getattr(self, name)
+            new = np.zeros(2 * old.size)
+            new[: old.size] = old
+            setattr(self, name, new)
+
 
 @dataclass(frozen=True)
 class StepPlan:
@@ -421,10 +518,11 @@ class SamplePlan:
     Shist: np.ndarray | None = None
 
     @classmethod
-    def of(cls, t, current, n: int = 0, ns: int = 0, dense: bool = False) -> SamplePlan:  # noqa: ANN001
+    def of(cls, t, current, n: int = 0, ns: int = 0, dense: bool = False, depth: int = 2) -> SamplePlan:  # noqa: ANN001
+        """``depth``: the step starts kept (2 for replayed plans, 3 for error-controlled steps)."""
         d = lambda x: np.ascontiguousarray(x, dtype=np.float64)  # noqa: E731
         return cls(
-            d(t), d(current), 0, np.zeros(2 * n) if dense else None, np.zeros(2 * n * ns) if dense and ns else None
+            d(t), d(current), 0, np.zeros(depth * n) if dense else None, np.zeros(2 * n * ns) if dense and ns else None
         )
 
 

@@ -26,7 +26,7 @@ from battlab.cell import Cell
 from battlab.model.casadi_run import Compiled, compile_model, run
 from battlab.model.dfn import C_SCALE, DFN
 from battlab.model.mesh import Mesh
-from battlab.model.native import SamplePlan, StepPlan
+from battlab.model.native import AdaptiveControl, SamplePlan, StepPlan
 from battlab.model.schedule import Schedule, next_step, schedule, split_ends, split_step
 from battlab.model.state import (
     NEWTON_FAIL,
@@ -106,19 +106,28 @@ def run_native(
     model = stepper.model
     lay = model.layout
     nx, ns = lay.nx, len(sel)
-    sch = schedule(t, I_dis, float(model.cell["Q_nom"]), settings)
     n_samp = len(t)
+    t_rel = t - t[0]
     # zero-length first steps find the consistent algebraic state at t = 0 by continuation in the current
     # from rest (where the equilibrium guess is exact), the last one writes sample 0
     ramp = I_dis[0] * np.array([0.0, 0.125, 0.25, 0.5, 1.0])
     n0 = ramp.size
-    h = np.concatenate([np.zeros(n0), sch.h])
-    w = np.concatenate([np.zeros(n0), sch.w])
-    cur = np.concatenate([ramp, sch.current])
-    t_end = np.concatenate([np.zeros(n0), sch.t_end])
-    emit = np.concatenate([np.zeros(n0 - 1), np.ones(sch.h.size + 1)])
-    dense = bool(np.any(sch.t_end[sch.sample_step] > t[1:] - t[0] + 1e-9 * np.maximum(1.0, t[1:] - t[0])))
-    samples = SamplePlan.of(t - t[0], I_dis, lay.ny, ns, dense)  # dense: some sample lies inside a step
+    adaptive = settings.adaptive and settings.replay is None
+    if settings.replay is not None:  # the steps another run accepted (its ramp included)
+        h, w, cur, t_end = (np.asarray(a, float) for a in settings.replay)
+    elif adaptive:  # the ramp here; the steps are chosen as the run goes (below)
+        h, w, cur, t_end = np.zeros(n0), np.zeros(n0), ramp, np.zeros(n0)
+    else:
+        sch = schedule(t, I_dis, float(model.cell["Q_nom"]), settings)
+        h = np.concatenate([np.zeros(n0), sch.h])
+        w = np.concatenate([np.zeros(n0), sch.w])
+        cur = np.concatenate([ramp, sch.current])
+        t_end = np.concatenate([np.zeros(n0), sch.t_end])
+    emit = np.concatenate([np.zeros(n0 - 1), np.ones(h.size - n0 + 1)])
+    tol_t = 1e-9 * np.maximum(1.0, t_rel[1:])
+    inside = np.minimum(np.searchsorted(t_end, t_rel[1:] - tol_t), t_end.size - 1)  # the step of each sample
+    dense = adaptive or bool(np.any(t_end[inside] > t_rel[1:] + tol_t))
+    samples = SamplePlan.of(t_rel, I_dis, lay.ny, ns, dense, 3 if adaptive else 2)  # dense: samples inside steps
     out = np.full((n_samp, 5), np.nan)
     outdV = np.full((n_samp, max(ns, 1)), np.nan)
     outdT2 = np.full((n_samp, max(ns, 1)), np.nan)
@@ -184,6 +193,21 @@ def run_native(
         h, w, cur = split_step(h, w, cur, pos)
         emit = np.concatenate([emit[:pos], [1, 1, 1], emit[pos:]])
         plan = StepPlan.of(h, w, cur, np.full(h.size, T_amb), t_end, emit)
+    accepted = (h, w, cur, t_end)
+    if adaptive and ended_by is None and n_samp > 1:
+        control = AdaptiveControl(
+            np.array([settings.rtol, settings.atol, settings.dt_max, settings.growth, settings.dt_first])
+        )
+        segments = _segments(t_rel, I_dis, float(model.cell["Q_nom"]), settings, T_amb)
+        ended_by, it = _adaptive(
+            stepper, pivots, segments, samples, control, th, sel_arr, y, xp, S, Sp, out, outdV, outdT2, lim, limits
+        )
+        n_iter += it
+        k = control.n
+        accepted = tuple(
+            np.concatenate([a, b[:k]])
+            for a, b in zip(accepted, (control.h, control.w, control.current, control.t_end), strict=True)
+        )
     n_keep = samples.next  # the samples written and within limits
     V, T1, T2, smin, smax = (out[:n_keep, j] for j in range(5))
     return Trajectory(
@@ -196,8 +220,82 @@ def run_native(
         outdT2[:n_keep] if ns else None,
         n_keep,
         ended_by,
-        int(h.size - 1),
+        int(accepted[0].size - 1),
         y,
         time.perf_counter() - t_start,
         n_iter,
+        accepted,
     )
+
+
+def _segments(t_rel: np.ndarray, I_dis: np.ndarray, i_1c: float, settings: Settings, T_amb: float) -> StepPlan:
+    """One entry per stretch of constant current: duration, ω = 0 where it restarts the scheme, current, end."""
+    n = len(t_rel) - 1
+    change = np.flatnonzero(I_dis[1:n] != I_dis[: n - 1]) + 1
+    a = np.concatenate([[0], change])
+    b = np.concatenate([change, [n]])
+    jump = np.abs(np.diff(I_dis)) > max(settings.refine_rate * i_1c, 1e-12 * i_1c)
+    restart = np.concatenate([[True], jump])[a]
+    return StepPlan.of(
+        t_rel[b] - t_rel[a], np.where(restart, 0.0, 1.0), I_dis[a], np.full(a.size, T_amb), t_rel[b], np.ones(a.size)
+    )
+
+
+def _adaptive(
+    stepper,
+    pivots,
+    segments: StepPlan,
+    samples: SamplePlan,
+    control: AdaptiveControl,
+    th: np.ndarray,
+    sel: np.ndarray,
+    y: np.ndarray,
+    xp: np.ndarray,
+    S: np.ndarray,
+    Sp: np.ndarray,
+    out: np.ndarray,
+    outdV: np.ndarray,
+    outdT2: np.ndarray,
+    lim: np.ndarray,
+    limits: dict[str, float],
+) -> tuple[str | None, int]:
+    """Error-controlled steps over the segments (after the start); returns (why the run ended or None, Newton
+    iterations). Pivot programs that vanish are re-analysed once per place, as in :func:`run_native`."""
+    nx = stepper.model.layout.nx
+    T_amb = float(segments.T_amb[0])
+    k = 0
+    n_iter = 0
+    reanalysed: tuple[int, float, int] = (-1, 0.0, 0)
+    while k < segments.h.size:
+        done, code, it = stepper.adapt(
+            pivots, segments[k:], samples, control, th, sel, y, xp, S, Sp, out, outdV, outdT2, lim
+        )
+        n_iter += it
+        k += done
+        if code == 0:
+            return None, n_iter
+        if code == -6:
+            control.grow()
+            continue
+        m = samples.next
+        t_now = float(control.state[0])
+        if code == -3:
+            raise RuntimeError("compiled stepper: no work memory")
+        if code == 1:
+            return check_end(m, out[:, 0], out[:, 2], out[:, 3], out[:, 4], limits), n_iter
+        if code == -4:
+            return _no_right_limit(t_now, segments.current[k], samples.current[m], limits), n_iter
+        if code == -1:
+            return f"solver: Newton did not converge at t = {t_now:.6g} s", n_iter
+        if reanalysed == (k, t_now, code):  # still singular after a new pivot order
+            if code == -5:
+                return _no_right_limit(t_now, segments.current[k], samples.current[m], limits), n_iter
+            return f"solver: singular Jacobian at t = {t_now:.6g} s", n_iter
+        reanalysed = (k, t_now, code)
+        if code == -5:
+            u0 = np.array([0.0, 0.0, samples.current[m], T_amb])
+            pivots = pivots.replace(zero=stepper.analyse_at(y, y[:nx], xp, u0, th))
+        else:
+            u1 = np.array([max(float(control.state[1]), 1e-3), 0.0, segments.current[k], T_amb])
+            pivots = pivots.replace(step=stepper.analyse_at(y, y[:nx], xp, u1, th))
+    return None, n_iter

@@ -42,6 +42,10 @@ class Settings:
     refine_rate: float = 0.0
     chunk: int = 128
     across_samples: bool = False
+    adaptive: bool = False
+    rtol: float = 1e-4
+    atol: float = 1e-6
+    replay: tuple[np.ndarray, ...] | None = None
 
 
 @dataclass
@@ -61,6 +65,7 @@ class Trajectory:
     final_state: np.ndarray
     seconds: float
     newton_iterations: int = 0
+    steps: tuple[np.ndarray, ...] | None = None  # h, ω, I_dis, t_end of every step taken (Settings.replay)
 
 
 def initial_state(model: DFN, soc0: float, theta_bar: np.ndarray, T0: float) -> np.ndarray:

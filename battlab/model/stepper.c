@@ -415,3 +415,189 @@ int bl_run(const Problem *P, const Problem *P0, int nsteps, const double *h, con
   free(Sy0); free(vy); free(vth); free(xp_save); free(S_save); free(Sp_save); free(yi); free(Si);
   return ret;
 }
+
+/* Error-controlled steps over segments of constant current (variable-step BDF2, the step sizes chosen as the
+ * solution goes). Segment k: duration seg_h[k] [s] ending at seg_t[k] on the samples' clock, current seg_I[k],
+ * seg_w[k] = 0 to restart with backward Euler after a current jump, else continue the BDF2 history. A step's local
+ * error is estimated by the distance of its solution from the quadratic extrapolation of the last three (the
+ * differential states, max norm, weights 1/(atol + rtol |x|)), scaled by h/(h + h1 + h2); a step with an estimate
+ * above 1 is redone with a smaller h, an accepted one sets the next h (at most x growth, at most hmax). The first
+ * two steps of a restart are dt_first and 2 dt_first. Samples are written as in bl_run (interpolated inside
+ * steps, right limits at segment ends). Accepted steps are recorded in plan_h/w/I/t (capacity plan_cap, count
+ * *plan_n) so that bl_run can replay them (for sensitivities at other theta, as finite differences need).
+ * ctl (in/out, kept across calls): [0] t (time reached), [1] next h, [2] h1 (last step), [3] h2 (the one before),
+ * [4] accepted steps in this segment, [5] 1 while inside segment 0 of this call; settings: adapt[5] = rtol, atol,
+ * hmax, growth, dt_first. yhist: 3n (starts of this step, the previous and the one before), Shist: 2 n ns.
+ * Returns segments completed; *code as bl_run, plus -6 (the plan is full: call again) and -1 (Newton failed at a
+ * step below 1e-6 s); the state is always that of the last accepted step. */
+int bl_adapt(const Problem *P, const Problem *P0, int nseg, const double *seg_h, const double *seg_w,
+             const double *seg_I, const double *seg_t, double Tamb, int nsamp, const double *t_samp,
+             const double *I_samp, int *m_io, double *yhist, double *Shist, double *ctl, const double *adapt,
+             const double *th, const int *sel, int ns, double tol, int maxit, const double *limits, double *y,
+             double *xp, double *S, double *Sp, double *Sy, double *out, double *outdV, double *outdT2,
+             double *plan_h, double *plan_w, double *plan_I, double *plan_t, int plan_cap, int *plan_n, int *code,
+             int *iters) {
+  int n = P->n, nx = P->nx, k, have_lu = 0, have_lu0 = 0;
+  size_t nsx = (size_t)nx * (ns > 0 ? ns : 1), nsy = (size_t)n * (ns > 0 ? ns : 1);
+  double rtol = adapt[0], atol = adapt[1], hmax = adapt[2], growth = adapt[3], dt_first = adapt[4];
+  double *ynew = malloc(sizeof(double) * n), *R = malloc(sizeof(double) * n);
+  double *yt = malloc(sizeof(double) * n), *Rt = malloc(sizeof(double) * n);
+  double *c = malloc(sizeof(double) * nsy);
+  double *xn = malloc(sizeof(double) * nx), *jnz = malloc(sizeof(double) * (P->jac_nnz + 1));
+  double *jth = malloc(sizeof(double) * (P->jth_nnz + 1));
+  double *lu = malloc(sizeof(double) * P->nslot), *lu0 = malloc(sizeof(double) * P0->nslot);
+  double *xp_save = malloc(sizeof(double) * nx);
+  double *S_save = malloc(sizeof(double) * nsx), *Sp_save = malloc(sizeof(double) * nsx);
+  double *y0 = malloc(sizeof(double) * n), *ysave = malloc(sizeof(double) * n);
+  double *yi = malloc(sizeof(double) * n), *Si = malloc(sizeof(double) * nsy);
+  double *Sy0 = malloc(sizeof(double) * nsy);
+  double *vy = malloc(sizeof(double) * n), *vth = malloc(sizeof(double) * (P->nth + 1));
+  double *yA = yhist, *yB = yhist + n, *yC = yhist + 2 * (size_t)n;
+  double *SA = Shist, *SB = Shist ? Shist + nsy : 0;
+  int ret = nseg, have_right = 0;
+  if (ensure_work()) { *code = -3; return 0; }
+  *code = 0;
+  *iters = 0;
+  for (k = 0; k < nseg; ++k) {
+    double t_e = seg_t[k], t_s = seg_t[k] - seg_h[k];
+    double eps = 1e-9 * (fabs(t_e) > 1.0 ? fabs(t_e) : 1.0);
+    if (!(k == 0 && ctl[5] > 0.0)) { /* a fresh segment (else: resumed inside segment 0) */
+      ctl[0] = t_s;
+      if (seg_w[k] == 0.0) { ctl[1] = dt_first; ctl[4] = 0.0; }
+    }
+    ctl[5] = 1.0;
+    while (ctl[0] < t_e - eps) {
+      double t = ctl[0], remaining = t_e - t, h = ctl[1] < hmax ? ctl[1] : hmax, err = 0.0;
+      int nseg_steps = (int)ctl[4], it;
+      if (remaining <= 1.2 * h) h = remaining;
+      else if (remaining <= 2.0 * h) h = 0.5 * remaining;
+      double w = nseg_steps == 0 ? 0.0 : h / ctl[2];
+      if (w > 2.4) { h = 2.4 * ctl[2]; w = 2.4; }
+      double u[4] = {h, w, seg_I[k], Tamb};
+      memcpy(xn, y, sizeof(double) * nx);
+      if (have_right) memcpy(ynew, y0, sizeof(double) * n);
+      else memcpy(ynew, y, sizeof(double) * n);
+      it = newton(P, ynew, xn, xp, u, th, lu, &have_lu, R, yt, Rt, jnz, c, tol, maxit);
+      if (it == -2) { *code = -2; ret = k; goto done; }
+      if (it < 0) { /* a smaller step from the same state */
+        if (h < 1e-6) { *code = -1; ret = k; goto done; }
+        ctl[1] = 0.25 * h;
+        continue;
+      }
+      *iters += it;
+      if (nseg_steps >= 2) {
+        /* quadratic extrapolation through the starts of the last two steps and this one */
+        double h1 = ctl[2], h2 = ctl[3];
+        double t0 = 0.0, t1 = -h1, t2 = -h1 - h2, tau = h;
+        double l0 = (tau - t1) * (tau - t2) / ((t0 - t1) * (t0 - t2));
+        double l1 = (tau - t0) * (tau - t2) / ((t1 - t0) * (t1 - t2));
+        double l2 = (tau - t0) * (tau - t1) / ((t2 - t0) * (t2 - t1));
+        double scale = h / (h + h1 + h2);
+        for (int i = 0; i < nx; ++i) {
+          double pred = l0 * yA[i] + l1 * yB[i] + l2 * yC[i];
+          double e = fabs(ynew[i] - pred) * scale / (atol + rtol * fabs(ynew[i]));
+          if (!(e <= err)) err = e;
+        }
+        if (!(err <= 1.0)) { /* rejected: redo smaller */
+          double f = 0.9 * pow(err, -1.0 / 3.0);
+          ctl[1] = h * (f > 0.2 ? f : 0.2);
+          if (ctl[1] < 1e-6) { *code = -1; ret = k; goto done; }
+          continue;
+        }
+      }
+      if (*plan_n >= plan_cap) { *code = -6; ret = k; goto done; }
+      /* accepted */
+      double t_end = (h == remaining) ? t_e : t + h;
+      int right = 0, mm = *m_io, m0 = *m_io;
+      while (mm < nsamp && t_samp[mm] <= t_end + eps) ++mm;
+      right = mm > *m_io && t_samp[mm - 1] >= t_end - eps && I_samp[mm - 1] != seg_I[k];
+      memcpy(xp_save, xp, sizeof(double) * nx);
+      memcpy(ysave, y, sizeof(double) * n);
+      if (ns && right) { memcpy(S_save, S, sizeof(double) * nsx); memcpy(Sp_save, Sp, sizeof(double) * nsx); }
+      if (ns) {
+        int s = sens(P, ynew, xn, xp, u, th, sel, ns, S, Sp, Sy, lu, jnz, jth, c);
+        if (s) { *code = s; ret = k; goto done; }
+        have_lu = 1;
+        memcpy(Sp, S, sizeof(double) * nsx);
+        memcpy(S, Sy, sizeof(double) * nsx);
+      }
+      memcpy(xp, xn, sizeof(double) * nx);
+      memcpy(y, ynew, sizeof(double) * n);
+      have_right = 0;
+      int stop = 0;
+      while (*m_io < nsamp && t_samp[*m_io] <= t_end + eps) {
+        int m = *m_io;
+        double *o = out + (size_t)5 * m;
+        double tau = t_samp[m] - t_end;
+        if (tau < -eps) {
+          interpolate(n, ns, tau, h, w > 0.0 ? h / w : 0.0, y, yA, yB, ns ? Sy : 0, SA, SB, yi, Si);
+          output(P, yi, u, th, sel, ns, Si, o, outdV + (size_t)m * ns, outdT2 + (size_t)m * ns, vy, vth);
+        } else if (I_samp[m] == seg_I[k]) {
+          output(P, y, u, th, sel, ns, Sy, o, outdV + (size_t)m * ns, outdT2 + (size_t)m * ns, vy, vth);
+        } else {
+          double u0[4] = {0.0, 0.0, I_samp[m], Tamb};
+          int beyond = 0;
+          memcpy(y0, y, sizeof(double) * n);
+          it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
+          if (it == -1) {
+            memcpy(y0, y, sizeof(double) * n);
+            for (int q = 1; q <= 8; ++q) {
+              u0[2] = seg_I[k] + (I_samp[m] - seg_I[k]) * q / 8.0;
+              it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
+              if (it < 0) break;
+              output(P0, y0, u0, th, sel, 0, Sy0, o, 0, 0, vy, vth);
+              if (!(o[0] >= limits[0] && o[0] <= limits[1])) { beyond = 1; break; }
+            }
+          }
+          if (beyond) { *code = 1; stop = 1; break; }
+          if (it >= 0 && ns && sens(P0, y0, y, xp, u0, th, sel, ns, S, Sp, Sy0, lu0, jnz, jth, c)) it = -2;
+          if (it == -2) { /* undo the step: the caller re-analyses P0 and calls again */
+            memcpy(y, ysave, sizeof(double) * n);
+            memcpy(xp, xp_save, sizeof(double) * nx);
+            if (ns) { memcpy(S, S_save, sizeof(double) * nsx); memcpy(Sp, Sp_save, sizeof(double) * nsx); }
+            *m_io = m0;
+            *code = -5;
+            ret = k;
+            goto done;
+          }
+          if (it < 0) { *code = -4; stop = 1; break; }
+          if (ns) have_lu0 = 1;
+          output(P, y0, u0, th, sel, ns, Sy0, o, outdV + (size_t)m * ns, outdT2 + (size_t)m * ns, vy, vth);
+          have_right = 1;
+        }
+        if (!(o[0] >= limits[0] && o[0] <= limits[1] && o[2] <= limits[2] && o[3] > 0.0 && o[4] < 1.0)) {
+          *code = 1;
+          stop = 1;
+          break;
+        }
+        ++*m_io;
+      }
+      plan_h[*plan_n] = h; plan_w[*plan_n] = w; plan_I[*plan_n] = seg_I[k]; plan_t[*plan_n] = t_end;
+      ++*plan_n;
+      /* history: the start of the next step (the right limit where one was taken) */
+      memcpy(yC, yB, sizeof(double) * n);
+      memcpy(yB, yA, sizeof(double) * n);
+      memcpy(yA, have_right ? y0 : y, sizeof(double) * n);
+      if (ns) {
+        memcpy(SB, SA, sizeof(double) * nsy);
+        memcpy(SA, have_right ? Sy0 : Sy, sizeof(double) * nsy);
+      }
+      ctl[0] = t_end;
+      ctl[3] = ctl[2];
+      ctl[2] = h;
+      ctl[4] = nseg_steps + 1;
+      if (nseg_steps < 2) ctl[1] = 2.0 * h;
+      else {
+        double f = err > 0.0 ? 0.9 * pow(err, -1.0 / 3.0) : growth;
+        ctl[1] = h * (f < growth ? f : growth);
+      }
+      if (stop) { ret = k; goto done; }
+    }
+    ctl[5] = 0.0;
+  }
+done:
+  free(ynew); free(R); free(yt); free(Rt); free(c); free(xn); free(jnz); free(jth); free(lu); free(lu0);
+  free(xp_save); free(S_save); free(Sp_save); free(y0); free(ysave); free(yi); free(Si); free(Sy0); free(vy);
+  free(vth);
+  return ret;
+}
