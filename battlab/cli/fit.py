@@ -71,8 +71,8 @@ def fit(
 ) -> None:
     """Identify CELL's parameters from DATA (equilibrium from an OCV test, dynamics by weighted LM).
 
-    The result is written after every stage, marked partial until the last; a failing stage is one line naming
-    it and exit code 1, with the finished stages kept."""
+    The result is written after the equilibrium fit and after every stage, marked partial until the last; a failing
+    stage is one line naming it and exit code 1, with the finished stages (or the equilibrium fit) kept."""
     import json
     import sys
 
@@ -90,6 +90,16 @@ def fit(
             err=True,
         )
     done = 0
+    equilibrium_written = False  # before stage 1 (when dynamic data follow the OCV test)
+
+    def show_equilibrium(name: str, eq: Any) -> None:
+        nonlocal equilibrium_written
+        equilibrium_written = True
+        click.echo(
+            f"equilibrium ({name}): capacity {eq.capacity:.4f} Ah, eps_s_n {eq.eps_s_n:.4f}, "
+            f"eps_s_p {eq.eps_s_p:.4f}, n_Li {eq.n_Li:.5f} mol, RMSE {eq.rmse_mV:.1f} mV "
+            f"({eq.rmse_5_95_mV:.1f} mV over 5-95 % SOC)"
+        )
 
     def show(k: int, r: Any) -> None:
         nonlocal done
@@ -115,30 +125,25 @@ def fit(
             max_iter=max_iter,
             fix_sign=fix_sign,
             on_stage=show,
+            on_equilibrium=show_equilibrium,
             output=out,
         )
     except workflow.StageFailed as exc:
         click.echo(f"error: {exc}", err=True)
         sys.exit(2 if isinstance(exc.cause, InputError) else 1)
     except KeyboardInterrupt:
-        status = json.loads(summary_path.read_text()).get("status", "") if done else ""
+        written = done or equilibrium_written
+        status = json.loads(summary_path.read_text()).get("status", "") if written else ""
         if status.startswith("complete"):  # while the last stage's figures were drawn
             click.echo(f"interrupted after the fit; {status.removeprefix('complete: ')} written to {out}", err=True)
-        elif done:
-            kept = status.removeprefix("partial: ") or f"stages 1–{done}"
+        elif written:
+            kept = status.removeprefix("partial: ") or "the finished stages"
             click.echo(f"interrupted in stage {done + 1}; {kept} kept (partial) in {out} and {summary_path}", err=True)
         else:
             click.echo(f"interrupted in stage 1; no stage finished, nothing written to {out}", err=True)
         sys.exit(130)
     for w in rep.warnings:
         click.echo(f"warning: {w}", err=True)
-    eq = rep.equilibrium
-    if eq is not None:
-        click.echo(
-            f"equilibrium ({rep.equilibrium_data}): capacity {eq.capacity:.4f} Ah, eps_s_n {eq.eps_s_n:.4f}, "
-            f"eps_s_p {eq.eps_s_p:.4f}, n_Li {eq.n_Li:.5f} mol, RMSE {eq.rmse_mV:.1f} mV "
-            f"({eq.rmse_5_95_mV:.1f} mV over 5-95 % SOC)"
-        )
     last = rep.last
     if last is not None:
         _print_estimates(last)

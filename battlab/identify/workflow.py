@@ -134,14 +134,17 @@ class FitReport:
 
 
 def stages_text(done: int, total: int) -> str:
-    """``"stage 1 of 4"`` or ``"stages 1–3 of 4"``."""
+    """``"stage 1 of 4"``, ``"stages 1–3 of 4"``, or with no stage done ``"equilibrium only (stages 0 of 4)"`` (the
+    only result written before stage 1 is the equilibrium fit's)."""
+    if done == 0:
+        return f"equilibrium only (stages 0 of {total})"
     return f"stage 1 of {total}" if done == 1 else f"stages 1–{done} of {total}"
 
 
 class StageFailed(Exception):
     """``fit`` failed in a stage: the stage (1-based, of ``total``), its cause, the report of the finished stages
-    (partial), the files the last of them was written to and how many stages those hold (None, 0: nothing
-    written)."""
+    (partial), the files the last of them was written to and how many stages those hold (``written`` None: nothing
+    written; ``kept`` 0 with files: the equilibrium fit alone)."""
 
     def __init__(
         self,
@@ -156,7 +159,7 @@ class StageFailed(Exception):
         self.written, self.kept = written, kept
         what = " ".join(str(cause).split())  # one line, whatever the cause's text
         what = what if isinstance(cause, InputError) else f"{type(cause).__name__}: {what}"
-        if written is not None and kept:
+        if written is not None:
             where = f"{stages_text(kept, total)} kept (partial) in {written[0]} and {written[1]}"
         elif report.results:
             where = f"{stages_text(len(report.results), total)} finished, nothing written (no output given)"
@@ -179,6 +182,7 @@ def fit(
     max_iter: int = 40,
     fix_sign: bool = False,
     on_stage: Callable[[int, Any], None] | None = None,
+    on_equilibrium: Callable[[str, Any], None] | None = None,
     output: str | Path | None = None,
 ) -> FitReport:
     """Identify the cell's parameters from logged data: equilibrium from an OCV test, then the dynamic
@@ -186,9 +190,12 @@ def fit(
     ``ambient`` [K]: for data that do not log it (see :data:`Ambient`); such data are refused otherwise.
 
     ``output`` (the BPX path; ``summary.json`` beside it): the report is written there after every stage, before
-    ``on_stage`` is called, marked partial (``summary["partial"]`` True, ``"status": "stages 1–3 of 4"``,
-    ``"converged"`` False; the BPX's fit report says the same) until the last stage, and then complete. A failure
-    in a stage raises :class:`StageFailed` naming it, with the finished stages kept on disk."""
+    ``on_stage`` is called, marked partial (``summary["partial"]`` True, ``"status": "partial: stages 1–3 of 4"``,
+    ``"converged"`` False; the BPX's fit report says the same) until the last stage, and then complete. The
+    equilibrium fit, when dynamic stages follow, is written before stage 1 starts, marked partial the same way
+    (``"partial: equilibrium only (stages 0 of 4)"``, ``stages_done`` 0); ``on_equilibrium(data name, result)`` is
+    called then (after that write, or without stages after the final one). A failure in a stage raises
+    :class:`StageFailed` naming it, with the finished stages (or the equilibrium fit) kept on disk."""
     from battlab.identify import fit as F
     from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
     from battlab.identify.experiments import experiments_from_data
@@ -202,7 +209,7 @@ def fit(
     summary: dict[str, Any] = {"parameters": {}, "rmse_mV": {}, "converged": True}
     extra: dict[str, Any] = {}
     report = FitReport(cell, summary, extra, warnings=warned)
-    written: tuple[Path, Path] | None = None  # where the last finished stage was written
+    written: tuple[Path, Path] | None = None  # where the last finished stage (or the equilibrium fit) was written
     kept = 0  # the stages written there
     if ocv:
         d = ocv[0]
@@ -243,15 +250,37 @@ def fit(
                 on_stage(k, res)
 
         report.cell = cell  # the start of the dynamic fit, until a stage finishes
+        if report.equilibrium is not None and plan_stages:
+            _summarise_equilibrium_only(report.summary, report.extra, len(plan_stages))
+            if output is not None:  # a crash or Ctrl-C in stage 1 keeps the equilibrium fit
+                written, kept = report.write(output), 0
+            if on_equilibrium is not None:
+                on_equilibrium(report.equilibrium_data, report.equilibrium)
         try:
             F.fit_groupwise(cell, plan_stages, options=F.Options(max_nfev=max_iter), forward=fm, progress=stage_done)
         except F.StageError as exc:
             raise StageFailed(exc.stage, exc.total, exc.cause, report, written, kept) from exc.cause
     else:
         report.cell = cell
-    if output is not None and written is None:  # no stage: the equilibrium fit (or the start cell) alone
-        report.write(output)
+    if not report.results:  # no stage: the equilibrium fit (or the start cell) alone
+        if report.equilibrium is not None:
+            _summarise_equilibrium_only(report.summary, report.extra, 0)
+        if output is not None:
+            report.write(output)
+        if report.equilibrium is not None and on_equilibrium is not None:
+            on_equilibrium(report.equilibrium_data, report.equilibrium)
     return report
+
+
+def _summarise_equilibrium_only(summary: dict[str, Any], extra: dict[str, Any], total: int) -> None:
+    """The summary and BPX metadata of the equilibrium fit alone: partial, none of ``total`` stages done, or
+    (``total`` 0: no dynamic stage follows) complete."""
+    partial = total > 0
+    status = "partial: " + stages_text(0, total) if partial else "complete: equilibrium only"
+    converged = bool(summary["converged"]) and not partial
+    keys = {"partial": partial, "status": status, "stages_done": 0, "stages_total": total, "converged": converged}
+    summary.update(keys, stages=[])
+    extra["fit_report"] = dict(keys)
 
 
 def _summarise_dynamic(results: list[Any], summary: dict[str, Any], extra: dict[str, Any], total: int) -> None:

@@ -39,6 +39,36 @@ def virtual_csv() -> Callable[[Path, int, int], str]:
     return _virtual_csv
 
 
+def _c20_cycle() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A simulated C/20 discharge, 1 h rest and C/20 charge of nca18650 (isothermal, every 60 s): t [s], I [A]
+    (positive = charge), V [V]."""
+    import battlab
+    from protocols.profile import Profile
+
+    cell = battlab.Cell.load("nca18650")
+    i = 2.7 / 20
+    ts, cs, vs, t0, soc = [], [], [], 0.0, 1.0
+    for cur, dur in [(-i, 21 * 3600.0), (0.0, 3600.0), (i, 21 * 3600.0)]:
+        res = battlab.simulate(cell, Profile.constant(cur, dur, 60.0), soc0=soc, isothermal=True, v_limits=(2.5, 4.2))
+        ts.append(res.t + t0)
+        cs.append(res.current)
+        vs.append(res.voltage)
+        t0 += res.t[-1] + 60.0
+        soc = float(np.clip(soc + cur * res.t[-1] / 3600 / cell.capacity(), 0, 1))
+    return np.concatenate(ts), np.concatenate(cs), np.concatenate(vs)
+
+
+@pytest.fixture(scope="session")
+def ocv_csv(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A C/20 OCV test of nca18650 (see :func:`_c20_cycle`, 43 h) logged at 25 degC as a BDF CSV; its path."""
+    from battlab.io.bdf import write_bdf_csv
+    from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE, LoggedData
+
+    t, i, v = _c20_cycle()
+    cols = {TIME: t, VOLTAGE: v, CURRENT: i, AMBIENT: np.full(t.size, 25.0)}
+    return str(write_bdf_csv(LoggedData("c20", cols, {}), tmp_path_factory.mktemp("ocv") / "c20.bdf.csv"))
+
+
 def _load_in_subprocess(paths: list[Path], timeout_s: float = 60.0) -> list[dict[str, object]]:
     """``battlab.io.data.load_data`` of each path in another process (a hang inside HDF5 holds the GIL, so only a
     process can be timed out): per path ``{"rows": n}`` or ``{"error": type name, "message": text}``."""

@@ -176,3 +176,51 @@ def test_groups_is_another_name_for_params(tmp_path, virtual_csv) -> None:
     assert r.exit_code == 0, r.output
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert list(summary["parameters"]) == ["R_s_n"] and summary["status"] == "complete: stage 1 of 1"
+
+
+@pytest.mark.parametrize(("crash", "code"), [(RuntimeError("solver diverged"), 1), (KeyboardInterrupt(), 130)])
+def test_a_crash_in_stage_1_keeps_the_equilibrium_fit(tmp_path, virtual_csv, ocv_csv, monkeypatch, crash, code) -> None:
+    """With a C/20 test among the data, the equilibrium fit is printed and written (partial) before stage 1: a crash
+    or Ctrl-C there says so in one line, and the files hold the identified stoichiometry windows."""
+    from battlab.identify import fit as F
+
+    real = F.fit
+
+    def fit(*args, **kwargs):
+        if kwargs.get("stage") == 1:
+            raise crash
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(F, "fit", fit)
+    out = tmp_path / "cell.bpx.json"
+    r = CliRunner().invoke(main, ["fit", ocv_csv, virtual_csv(tmp_path, 19, 1), "--cell", "nca18650", "-o", str(out)])
+    assert r.exit_code == code, r.output
+    assert "Traceback" not in r.output and isinstance(r.exception, SystemExit)
+    lines = r.output.splitlines()
+    assert lines[0].startswith("equilibrium (c20): capacity ") and len(lines) == 2
+    kept = f"equilibrium only (stages 0 of 4) kept (partial) in {out} and {tmp_path / 'cell.summary.json'}"
+    if code == 1:
+        assert lines[1] == f"error: fit failed in stage 1 of 4: RuntimeError: solver diverged; {kept}"
+    else:
+        assert lines[1] == f"interrupted in stage 1; {kept}"
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["status"] == "partial: equilibrium only (stages 0 of 4)" and summary["stages_done"] == 0
+    fitted, start = battlab.Cell.from_bpx(out), battlab.Cell.load("nca18650")
+    for name in ("eps_s_n", "eps_s_p", "n_Li"):
+        assert fitted[name] == pytest.approx(summary["parameters"][name]["value"], rel=1e-12)
+    assert f"eps_s_n {fitted['eps_s_n']:.4f}" in lines[0] and fitted["eps_s_n"] != pytest.approx(start["eps_s_n"])
+
+
+def test_an_ocv_test_alone_is_a_complete_equilibrium_fit(tmp_path, ocv_csv) -> None:
+    out = tmp_path / "cell.bpx.json"
+    r = CliRunner().invoke(main, ["fit", ocv_csv, "--cell", "nca18650", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    assert r.output.startswith("equilibrium (c20): capacity ")
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert (summary["partial"], summary["status"], summary["stages_done"], summary["stages"]) == (
+        False,
+        "complete: equilibrium only",
+        0,
+        [],
+    )
+    assert summary["converged"] is True and set(summary["parameters"]) == {"eps_s_n", "eps_s_p", "n_Li"}

@@ -72,3 +72,48 @@ def test_each_stage_is_written_as_it_finishes_and_the_last_is_complete(tmp_path:
     assert final["partial"] is False and final == json.loads(json.dumps(rep.summary, default=workflow.json_default))
     assert final["converged"] == all(s["converged"] for s in final["stages"])
     assert "complete: stages 1–4 of 4" in json.loads(out.read_text())["Header"]["Description"]
+
+
+def test_a_crash_in_stage_1_keeps_the_equilibrium_fit_on_disk(
+    tmp_path: Path, virtual_csv, ocv_csv, monkeypatch
+) -> None:
+    """The equilibrium fit (C/20 test) is written, marked partial, before stage 1 starts: a crash there keeps it."""
+    data = virtual_csv(tmp_path, 19, 1)
+    crash_in_stage(monkeypatch, 1, RuntimeError("solver diverged"))
+    out = tmp_path / "out" / "cell.bpx.json"
+    seen: list[tuple[str, float]] = []
+
+    def on_equilibrium(name: str, eq: object) -> None:  # the file on disk when the equilibrium callback runs
+        s = json.loads(out.with_name("summary.json").read_text())
+        seen.append((s["status"], s["parameters"]["eps_s_n"]["value"]))
+
+    with pytest.raises(workflow.StageFailed) as info:
+        workflow.fit([ocv_csv, data], "nca18650", params="table9", output=out, on_equilibrium=on_equilibrium)
+    exc = info.value
+    eq = exc.report.equilibrium
+    assert eq is not None and exc.report.equilibrium_data == "c20"
+    assert (exc.stage, exc.total, exc.kept) == (1, 4, 0) and exc.written == (out, out.with_name("cell.summary.json"))
+    assert seen == [("partial: equilibrium only (stages 0 of 4)", eq.eps_s_n)]
+    text = str(exc)
+    assert text == (
+        "fit failed in stage 1 of 4: RuntimeError: solver diverged; equilibrium only (stages 0 of 4) kept (partial) "
+        f"in {out} and {out.with_name('cell.summary.json')}"
+    )
+    summary = json.loads(out.with_name("summary.json").read_text())
+    assert summary == json.loads(out.with_name("cell.summary.json").read_text())
+    assert summary["partial"] is True and summary["status"] == "partial: equilibrium only (stages 0 of 4)"
+    assert (summary["stages_done"], summary["stages_total"], summary["converged"], summary["stages"]) == (
+        0,
+        4,
+        False,
+        [],
+    )
+    assert set(summary["parameters"]) == {"eps_s_n", "eps_s_p", "n_Li"} and summary["rmse_mV"]["c20"] == eq.rmse_mV
+    assert summary["equilibrium"]["eps_s_n"] == eq.eps_s_n
+    fitted = battlab.Cell.from_bpx(out)  # loadable, and it is the equilibrium fit's cell
+    for name in ("eps_s_n", "eps_s_p", "n_Li"):
+        assert summary["parameters"][name]["value"] == pytest.approx(getattr(eq, name), rel=1e-12)
+        assert fitted[name] == pytest.approx(eq.cell[name], rel=1e-12)
+    assert fitted["eps_s_n"] != pytest.approx(battlab.Cell.load("nca18650")["eps_s_n"], rel=1e-6)
+    assert "partial: equilibrium only (stages 0 of 4)" in json.loads(out.read_text())["Header"]["Description"]
+    assert sorted(p.name for p in out.parent.iterdir()) == ["cell.bpx.json", "cell.summary.json", "summary.json"]
