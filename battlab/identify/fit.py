@@ -115,7 +115,8 @@ class Convergence:
     cost: float  # ½ Σ r² at the end
     gradient_norm: float  # ‖Jᵀr‖∞ projected on the bounds (scipy's first-order optimality)
     seconds: float
-    #: Cost decrease that the bounded Gauss–Newton step from the end point predicts (linearised model)
+    #: Cost decrease that the bounded Gauss–Newton step from the end point predicts (linearised model); NaN when
+    #: that step could not be computed (the optimiser failed, or the step did: ``reason`` says which)
     predicted_decrease: float = float("nan")
 
 
@@ -282,44 +283,101 @@ def _abs_errors(exps: Sequence[Experiment], preds: list[np.ndarray]) -> np.ndarr
     return np.concatenate([1e3 * np.abs(p - e.voltage)[e.mask] for e, p in zip(exps, preds, strict=True)])
 
 
-def _bounded_gauss_newton(x: np.ndarray, J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
+@dataclass(frozen=True)
+class GaussNewtonStep:
+    """A bounded Gauss–Newton step δ in θ̄ and the decrease of the linearised cost ½‖r + Jδ‖² it predicts [½χ²
+    units, ≥ 0]. ``failed`` says why no step could be trusted (then δ = 0 and ``predicted`` is NaN: no prediction,
+    so no convergence can be read from it)."""
+
+    step: np.ndarray
+    predicted: float
+    failed: str | None = None
+
+
+def _bounded_gauss_newton(x: np.ndarray, J: np.ndarray, r: np.ndarray) -> GaussNewtonStep:
     """The Gauss–Newton step δ from ``x`` that minimises the linearised cost ½‖r + Jδ‖² inside the box
     0 ≤ x + δ ≤ 1 (bounded linear least squares on the column-scaled Jacobian), and the decrease it predicts.
 
     Unbounded, the step along the nearly dependent directions (singular values 1e-4 of the largest) runs far
     outside [0, 1]; inside the box the prediction stays meaningful.
+
+    δ = 0 is inside the box, so the minimiser predicts a decrease ≥ 0, and at least that of the best step along
+    the projected steepest descent (:func:`_steepest_descent_decrease`). A solution that predicts less did not
+    solve the subproblem (scipy's BVLS stops after one iteration per variable by default, which an ill-conditioned
+    Jacobian whose minimum has several parameters on a bound can exceed: on a 7-parameter problem it returned a
+    step predicting −0.33 where +0.23 was there to gain). Such a solution is never taken as a prediction: BVLS is
+    given more iterations, the interior-point solver (TRF) is tried next, and if neither solves it the step is
+    reported failed. A prediction within round-off of zero is accepted only where steepest descent finds nothing
+    either (a stationary point).
     """
     from scipy.optimize import lsq_linear
 
     norms = np.linalg.norm(J, axis=0)
     norms[norms == 0] = 1.0
+    A = J / norms
     lo, hi = -x * norms, (1.0 - x) * norms
     hi = np.maximum(hi, lo + 1e-300)
-    sol = lsq_linear(J / norms, -r, bounds=(lo, hi), method="bvls", tol=1e-12)
-    step = sol.x / norms
-    rr = r + J @ step
-    return step, 0.5 * float(r @ r - rr @ rr)
+    r2 = float(r @ r)
+    slack = 1e-9 * r2  # round-off of ½(‖r‖² − ‖r + Jδ‖²), far below any predicted_tol in use
+    floor = _steepest_descent_decrease(A, r, lo, hi)
+    tried = []
+    for method in ("bvls", "trf"):
+        sol = lsq_linear(A, -r, bounds=(lo, hi), method=method, tol=1e-12, max_iter=max(100, 10 * x.size))
+        step = sol.x / norms
+        rr = r + J @ step
+        dec = 0.5 * (r2 - float(rr @ rr))
+        if sol.status > 0 and dec >= max(floor, 0.0) - slack:
+            return GaussNewtonStep(step, max(dec, 0.0))
+        tried.append(f"{method.upper()} {dec:.3g}" + ("" if sol.status > 0 else " at its iteration limit"))
+    return GaussNewtonStep(
+        np.zeros_like(x),
+        float("nan"),
+        f"predicted decrease {', '.join(tried)}, below the {floor:.3g} of steepest descent inside the bounds "
+        "(active set not found, or a rank-deficient Jacobian)",
+    )
+
+
+def _steepest_descent_decrease(A: np.ndarray, r: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
+    """The decrease of ½‖r + Az‖² along the projected steepest descent: the best of z = clip(α d, lo, hi) with
+    d = −Aᵀr, for α at the unbounded line minimum (and fractions of it) and at the first bound. Each z is inside
+    lo ≤ z ≤ hi (lo ≤ 0 ≤ hi), so this is a lower bound of what the minimiser of the bounded problem predicts."""
+    d = -(A.T @ r)
+    dd = float(d @ d)
+    Ad = A @ d
+    curv = float(Ad @ Ad)
+    if dd == 0.0 or curv == 0.0:
+        return 0.0
+    up, down = d > 0, d < 0
+    first = min(np.min(hi[up] / d[up], initial=np.inf), np.min(lo[down] / d[down], initial=np.inf))
+    r2 = float(r @ r)
+    best = 0.0
+    for a in (dd / curv, 0.3 * dd / curv, 0.1 * dd / curv, first):
+        if np.isfinite(a) and a > 0:
+            rz = r + A @ np.clip(a * d, lo, hi)
+            best = max(best, 0.5 * (r2 - float(rz @ rz)))
+    return best
 
 
 #: Fractions of the bounded Gauss–Newton step tried in turn by :func:`_polish`.
 POLISH_STEPS = (1.0, 0.5, 0.25, 0.1, 0.03, 0.01)
 
 
-def _polish(prob: _Problem, x: np.ndarray, opt: Options) -> tuple[np.ndarray, float, int]:
+def _polish(prob: _Problem, x: np.ndarray, opt: Options) -> tuple[np.ndarray, GaussNewtonStep, int]:
     """Bounded Gauss–Newton steps with backtracking after an optimiser stopped by its iteration limit (the
     trust-region iterations crawl along the long, curved valleys of the nearly dependent parameters).
 
     Stops when the linearised cost predicts a decrease below ``opt.predicted_tol`` inside the bounds, when no
-    fraction in :data:`POLISH_STEPS` of the step lowers the cost, or after ``opt.polish`` simulations; returns
-    (x, predicted decrease at x, simulations used).
+    fraction in :data:`POLISH_STEPS` of the step lowers the cost, when the step cannot be computed
+    (:attr:`GaussNewtonStep.failed`) or after ``opt.polish`` simulations; returns (x, the Gauss–Newton step from x
+    with its predicted decrease, simulations used).
     """
     r, J, _ = prob.evaluate(x)
     cost = 0.5 * float(r @ r)
-    step, dec = _bounded_gauss_newton(x, J, r)
+    gn = _bounded_gauss_newton(x, J, r)
     used = 0
-    while dec > opt.predicted_tol and used < opt.polish:
+    while gn.failed is None and gn.predicted > opt.predicted_tol and used < opt.polish:
         for a in POLISH_STEPS[: opt.polish - used]:
-            xt = np.clip(x + a * step, 0.0, 1.0)
+            xt = np.clip(x + a * gn.step, 0.0, 1.0)
             rt = prob.evaluate(xt)[0]
             used += 1
             ct = 0.5 * float(rt @ rt)
@@ -329,8 +387,8 @@ def _polish(prob: _Problem, x: np.ndarray, opt: Options) -> tuple[np.ndarray, fl
             break
         x, cost = xt, ct
         r, J, _ = prob.evaluate(x)
-        step, dec = _bounded_gauss_newton(x, J, r)
-    return x, dec, used
+        gn = _bounded_gauss_newton(x, J, r)
+    return x, gn, used
 
 
 def fit(
@@ -412,9 +470,10 @@ def _fit(
     if cost > cost0:  # never return a worse point than the start
         x, (r, J, preds), cost = x0, prob.evaluate(x0), cost0
     # polish only a fit stopped by its iteration limit (after a tolerance stop the valleys' curvature defeats it)
-    dec, n_polish = float("nan"), 0
+    gn_step, n_polish = GaussNewtonStep(np.zeros_like(x), float("nan")), 0
     if err is None:
-        x, dec, n_polish = _polish(prob, x, replace(opt, polish=opt.polish if status == 0 else 0))
+        x, gn_step, n_polish = _polish(prob, x, replace(opt, polish=opt.polish if status == 0 else 0))
+    dec = gn_step.predicted
     r, J, preds = prob.evaluate(x)
     cost = 0.5 * float(r @ r)
     nfev += n_polish
@@ -427,14 +486,18 @@ def _fit(
         4: "ftol and xtol both met",
     }
     ended = f"{reasons.get(status, 'unknown')}" if err is None else err
-    converged = err is None and (status > 0 or dec <= opt.predicted_tol)
-    gn = f"the linearised cost predicts a further decrease of {dec:.2g} inside the bounds"
+    # a failed Gauss–Newton step predicts nothing (NaN): only the optimiser's own tolerances can then say converged
+    converged = err is None and (status > 0 or (gn_step.failed is None and dec <= opt.predicted_tol))
+    if gn_step.failed is not None:
+        gn = f"the bounded Gauss–Newton step failed: {gn_step.failed}"
+    else:
+        gn = f"the linearised cost predicts a further decrease of {dec:.2g} inside the bounds"
     if err is not None:
         reason = err
     elif converged:
         reason = f"converged ({ended}); {gn}"
     else:
-        reason = f"not converged: {ended}; {gn} (> {opt.predicted_tol:g})"
+        reason = f"not converged: {ended}; {gn}" + ("" if gn_step.failed else f" (> {opt.predicted_tol:g})")
     seconds = time.perf_counter() - t0
     p = len(names)
     extra: dict[str, object] = {}

@@ -8,9 +8,10 @@ import pytest
 import battlab
 from battlab import parameters as P
 from battlab.identify import fit as F
-from battlab.identify.forward import ForwardModel
+from battlab.identify.forward import ForwardModel, Output
 from battlab.identify.virtual import noise_free, synthesize
 from protocols.library import Library
+from protocols.profile import Profile
 
 NAMES = ("R_s_n", "R_s_p", "D_s_p")
 IDS = (19, 37)  # 10-s and 100-s discharge pulse trains from SOC 0.8 (600 s each)
@@ -71,6 +72,101 @@ def test_gauss_newton_polish_finishes_a_truncated_fit(setup) -> None:
     assert done.convergence.converged, done.convergence.reason
     assert done.convergence.cost < cut.convergence.cost - 1.0
     assert done.convergence.iterations > cut.convergence.iterations
+
+
+def ill_conditioned_problem() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A bounded linear least-squares problem min ½‖r0 + J (x − x0)‖² over 0 ≤ x ≤ 1: 7 parameters, 24 residuals,
+    singular values of J from 47 to 1.8e-5, start x0 inside the box; at its minimum five parameters sit on a bound.
+    (Found by a seeded search: scipy's BVLS, with its default limit of one iteration per variable, stops there
+    with a point worse than not moving.) Returns x0, J, r0."""
+    rng = np.random.default_rng(7202)
+    n, m = 7, 24
+    rng.integers(5, 13), rng.integers(0, 30)  # the search drew the sizes: keep the stream
+    u, _ = np.linalg.qr(rng.normal(size=(m, n)))
+    v, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    s = 10.0 ** -rng.uniform(0, 4, size=n)
+    jac = (u * s) @ v.T * 10.0 ** rng.integers(-2, 3, size=n)
+    rng.random()
+    x0 = rng.random(n)
+    return x0, jac, rng.normal(size=m)
+
+
+def bounded_minimum(x0: np.ndarray, jac: np.ndarray, r0: np.ndarray) -> float:
+    """The least cost ½‖r0 + J (x − x0)‖² over 0 ≤ x ≤ 1, solved independently (TRF, tight tolerance)."""
+    from scipy.optimize import lsq_linear
+
+    sol = lsq_linear(jac, jac @ x0 - r0, bounds=(0.0, 1.0), method="trf", tol=1e-14, max_iter=10_000)
+    assert sol.status > 0
+    return float(sol.cost)
+
+
+def test_bounded_gauss_newton_step_solves_an_ill_conditioned_problem() -> None:
+    x0, jac, r0 = ill_conditioned_problem()
+    cost0, best = 0.5 * float(r0 @ r0), bounded_minimum(x0, jac, r0)
+    assert cost0 - best > 0.2  # far from converged: the step must predict that
+    gn = F._bounded_gauss_newton(x0, jac, r0)
+    assert gn.failed is None
+    assert gn.predicted == pytest.approx(cost0 - best, rel=1e-6)
+    rr = r0 + jac @ gn.step  # the prediction is the linear model's decrease at the step, inside the box
+    assert gn.predicted == pytest.approx(0.5 * float(r0 @ r0 - rr @ rr), rel=1e-9)
+    assert np.all(x0 + gn.step >= -1e-12) and np.all(x0 + gn.step <= 1 + 1e-12)
+
+
+class LinearModel:
+    """A forward model linear in the fitted θ̄: V = 3.7 V + σ J (θ̄ − x0), so that the weighted residual of the
+    experiment from :func:`linear_experiment` is r0 + J (θ̄ − x0); exact sensitivities σ J."""
+
+    thread_safe = False
+
+    def __init__(self, names: tuple[str, ...], x0: np.ndarray, jac: np.ndarray, sigma: float) -> None:
+        self.idx = [P.NAMES.index(n) for n in names]
+        self.x0, self.S = x0, sigma * jac
+
+    def run(self, theta_bar: np.ndarray, profile: Profile, soc0: float, **kw: object) -> Output:
+        v = 3.7 + self.S @ (np.asarray(theta_bar)[self.idx] - self.x0)
+        return Output(v, self.S.copy() if kw.get("sensitivities") else None, None)
+
+
+def linear_fit(options: F.Options) -> F.FitResult:
+    """Fit of the ill-conditioned linear problem from x0."""
+    x0, jac, r0 = ill_conditioned_problem()
+    names = P.NAMES[: x0.size]
+    sigma = 1e-3
+    t = np.arange(r0.size, dtype=float)
+    exp = F.Experiment("linear", Profile(t, np.zeros_like(t)), 3.7 - sigma * r0, 0.5, sigma**2)
+    start = battlab.Cell.load("nca18650").with_normalised(**dict(zip(names, map(float, x0), strict=True)))
+    fm = LinearModel(names, x0, jac, sigma)
+    return F.fit(start, [exp], names, forward=fm, options=options)
+
+
+def test_a_fit_converged_by_the_gauss_newton_prediction_is_at_the_minimum() -> None:
+    """Stopped by its iteration limit at the start, the fit is polished by bounded Gauss–Newton steps; converged
+    means the cost is within ``predicted_tol`` of the bounded minimum (a failed step once reported convergence)."""
+    best = bounded_minimum(*ill_conditioned_problem())
+    c = linear_fit(F.Options(max_nfev=1)).convergence
+    assert c.converged, c.reason
+    assert c.cost <= best + F.Options().predicted_tol
+    assert 0.0 <= c.predicted_decrease <= F.Options().predicted_tol
+
+
+def test_a_gauss_newton_step_that_cannot_be_solved_is_not_convergence(monkeypatch) -> None:
+    """A bounded least-squares solver stopped before it finds the step (here: one iteration) gives no prediction
+    of the decrease: the fit says it is not converged, and why, instead of counting a negative prediction as
+    converged."""
+    import scipy.optimize
+
+    best = bounded_minimum(*ill_conditioned_problem())
+    real = scipy.optimize.lsq_linear
+
+    def one_iteration(*args: object, **kwargs: object) -> object:
+        return real(*args, **{**kwargs, "max_iter": 1})
+
+    monkeypatch.setattr(scipy.optimize, "lsq_linear", one_iteration)
+    c = linear_fit(F.Options(max_nfev=1)).convergence
+    assert not c.converged
+    assert "maximum number of iterations reached" in c.reason and "Gauss–Newton step failed" in c.reason
+    assert np.isnan(c.predicted_decrease)
+    assert c.cost == pytest.approx(c.cost_start) and c.cost > best + 0.2  # still at the start: nothing hidden
 
 
 def test_experiments_on_several_threads_give_the_same_fit(setup) -> None:
