@@ -42,6 +42,7 @@ class Result:
     sensitivities_T: np.ndarray | None = None
     ended_by: str | None = None
     stats: dict[str, float] = field(default_factory=dict)
+    steps: tuple[np.ndarray, ...] | None = None  # the steps taken (h, ω, I, t_end): Settings(replay=...) repeats them
 
     @property
     def completed(self) -> bool:
@@ -129,6 +130,7 @@ def simulate(
             "steps": traj.n_steps,
             "newton_iterations": traj.newton_iterations,
         },
+        steps=traj.steps,
     )
 
 

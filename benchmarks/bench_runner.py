@@ -12,7 +12,7 @@
    sample (no sockets, no sleeping): wall time per sample is the runner's cost alone, logging included.
 
 Targets: ≥ 1000× real time including the socket round trips; ≤ 1 ms runner overhead per sample.
-Run: ``python benchmarks/bench_runner.py [--quick]``; prints a table and a JSON line.
+Run: ``python benchmarks/bench_runner.py [--quick] [--cycle udds]``; prints a table and a JSON line.
 """
 
 from __future__ import annotations
@@ -46,8 +46,14 @@ TARGET_RTF = 1000.0
 TARGET_OVERHEAD_S = 1e-3
 
 
-def one_hour_plan(profile_id: int, duration_s: float | None = None) -> Plan:
-    prof = Library.build()[profile_id]
+def one_hour_plan(profile_id: int, duration_s: float | None = None, cycle: str | None = None) -> Plan:
+    """A rest, then library profile ``profile_id`` (or the drive cycle ``cycle``, the library's EV-model current)."""
+    if cycle is not None:
+        from protocols import Cycle, drive_profile
+
+        prof = drive_profile(Cycle[cycle.upper()])
+    else:
+        prof = Library.build()[profile_id]
     if duration_s is not None and duration_s < prof.duration:
         from protocols import Profile
 
@@ -211,6 +217,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="1000x only, in this process")
     ap.add_argument("--profile", type=int, default=403, help="library profile id (a one-hour profile)")
+    ap.add_argument("--cycle", default=None, help="a drive cycle (udds, us06, hwfet, ...) instead of --profile")
     ap.add_argument("--speeds", type=float, nargs="+", default=[1000.0, 2000.0])
     ap.add_argument(
         "--physics",
@@ -220,16 +227,14 @@ def main() -> None:
         help="cell physics of the virtual tester (the stand-in separates the DFN's cost)",
     )
     args = ap.parse_args()
-    plan = one_hour_plan(args.profile)
+    plan = one_hour_plan(args.profile, cycle=args.cycle)
+    what = f"drive cycle {args.cycle.upper()}" if args.cycle else f"one-hour library profile {args.profile}"
     work = Path(tempfile.mkdtemp(prefix="bench-runner-"))
     os.environ["BATTLAB_HOME"] = str(work / "home")
     runs = []
     wheres = ["thread"] if args.quick else ["thread", "process"]
     speeds = [1000.0] if args.quick else args.speeds
-    print(
-        f"one-hour library profile {args.profile} on the DFN virtual tester over loopback sockets (runner: "
-        "start_run, 1 s sampling)"
-    )
+    print(f"{what} on the DFN virtual tester over loopback sockets (runner: start_run, 1 s sampling)")
     head = f"  {'physics':<8}{'server':<8}{'speed':>7}{'wall s':>8}{'RTF':>8}{'samples':>10}{'late mean s':>12}"
     print(head + f"{'late max s':>11}{'gap max s':>10}{'gaps':>6}{'io/sample':>11}{'runner/sample':>14}  status")
     physics_list = ["dfn"] if args.quick else args.physics

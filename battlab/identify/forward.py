@@ -123,7 +123,7 @@ class ForwardModel:
             float(soc0),
             float(ambient if T0 is None else T0),
             sel,
-            solver.Settings(),
+            solver.Settings(adaptive=False),  # steps that do not move with θ̄: a cost smooth in θ̄
             limits,
         )
         return Output(traj.voltage, traj.dV if names else None, traj.ended_by, traj.T2)

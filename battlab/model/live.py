@@ -13,7 +13,7 @@ from battlab import parameters
 from battlab.cell import Cell
 from battlab.model import solver
 from battlab.model.mesh import Mesh
-from battlab.model.native import SamplePlan, StepPlan
+from battlab.model.plans import SamplePlan, StepPlan
 from protocols.errors import InputError
 
 _EMPTY = np.zeros(0)

@@ -26,7 +26,7 @@ from battlab.cell import Cell
 from battlab.model.casadi_run import Compiled, compile_model, run
 from battlab.model.dfn import C_SCALE, DFN
 from battlab.model.mesh import Mesh
-from battlab.model.native import AdaptiveControl, SamplePlan, StepPlan
+from battlab.model.plans import AdaptiveControl, SamplePlan, StepPlan
 from battlab.model.schedule import Schedule, next_step, schedule, split_ends, split_step
 from battlab.model.state import (
     NEWTON_FAIL,
@@ -196,7 +196,7 @@ def run_native(
     accepted = (h, w, cur, t_end)
     if adaptive and ended_by is None and n_samp > 1:
         control = AdaptiveControl(
-            np.array([settings.rtol, settings.atol, settings.dt_max, settings.growth, settings.dt_first])
+            np.array([settings.rtol, settings.atol, settings.h_max, settings.growth, settings.dt_first])
         )
         segments = _segments(t_rel, I_dis, float(model.cell["Q_nom"]), settings, T_amb)
         ended_by, it = _adaptive(

@@ -137,11 +137,12 @@ static double norm_inf(const double *v, int n) {
   return m;
 }
 
-/* Newton for one step from the guess in ynew. lu/have_lu: the chord matrix and whether there is one.
+/* Newton for one step from the guess in ynew. dytol: the relative size of a chord update that counts as
+ * converged (1e-11 where the solution must be exact to round-off, looser under error control). lu/have_lu: the chord matrix and whether there is one.
  * R, yt, Rt, c: work [n]. Returns iterations (>= 0) or -1 (no convergence), -2 (singular). */
 static int newton(const Problem *P, double *ynew, const double *xn, const double *xp, const double *u,
                   const double *th, double *lu, int *have_lu, double *R, double *yt, double *Rt, double *jnz,
-                  double *c, double tol, int maxit) {
+                  double *c, double tol, int maxit, double dytol) {
   int it, njac = 0, fresh_last = 0, i;
   double prev = INFINITY, dy = INFINITY, r;
   call5(bl_res, ynew, xn, xp, u, th, R, 0);
@@ -159,7 +160,7 @@ static int newton(const Problem *P, double *ynew, const double *xn, const double
        differences): after a Newton update with a Jacobian taken at the previous iterate the error is
        O(dy^2); after a chord update it is O(rate dy); or the residual sits at its round-off floor */
     scale = 1.0 + norm_inf(ynew, P->n);
-    if (r < tol && (dy < (fresh_last ? 1e-6 : 1e-11) * scale || r > 0.5 * prev)) return it;
+    if (r < tol && (dy < (fresh_last ? 1e-6 : dytol) * scale || r > 0.5 * prev)) return it;
     /* the update no longer moves the solution: the residual is at its round-off floor */
     if (dy < 1e-13 * scale && r < 1e3 * tol) return it;
     /* chord iterations on the last factorisation while they contract fast, else a fresh Jacobian */
@@ -321,7 +322,7 @@ int bl_run(const Problem *P, const Problem *P0, int nsteps, const double *h, con
       memcpy(xp_save, xp, sizeof(double) * nx);
       if (ns) { memcpy(S_save, S, sizeof(double) * nsx); memcpy(Sp_save, Sp, sizeof(double) * nsx); }
     }
-    it = newton(Pk, ynew, xn, xp, u, th, luk, hlk, R, yt, Rt, jnz, c, tol, maxit);
+    it = newton(Pk, ynew, xn, xp, u, th, luk, hlk, R, yt, Rt, jnz, c, tol, maxit, 1e-11);
     if (it < 0) { *code = (it == -2 && Pk == P0) ? -5 : it; ret = k; break; }
     *iters += it;
     if (ns) {
@@ -352,7 +353,7 @@ int bl_run(const Problem *P, const Problem *P0, int nsteps, const double *h, con
         /* right limit: algebraic re-solve with the new current (a zero-length step) */
         double u0[4] = {0.0, 0.0, I_samp[m], Tamb[k]};
         memcpy(y0, y, sizeof(double) * n);
-        it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
+        it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit, 1e-11);
         int beyond = 0;
         if (it == -1) {
           /* a large current step: continuation in the current from the left limit; a voltage beyond the limits
@@ -361,7 +362,7 @@ int bl_run(const Problem *P, const Problem *P0, int nsteps, const double *h, con
           memcpy(y0, y, sizeof(double) * n);
           for (int q = 1; q <= 8; ++q) {
             u0[2] = I[k] + (I_samp[m] - I[k]) * q / 8.0;
-            it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
+            it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit, 1e-11);
             if (it < 0) break;
             output(P0, y0, u0, th, sel, 0, Sy0, o, 0, 0, vy, vth);
             if (!(o[0] >= limits[0] && o[0] <= limits[1])) { beyond = 1; break; }
@@ -440,6 +441,8 @@ int bl_adapt(const Problem *P, const Problem *P0, int nseg, const double *seg_h,
   int n = P->n, nx = P->nx, k, have_lu = 0, have_lu0 = 0;
   size_t nsx = (size_t)nx * (ns > 0 ? ns : 1), nsy = (size_t)n * (ns > 0 ? ns : 1);
   double rtol = adapt[0], atol = adapt[1], hmax = adapt[2], growth = adapt[3], dt_first = adapt[4];
+  /* Newton converged well inside the local error allowed (a chord update 1 % of rtol) */
+  double ntol = 0.01 * rtol > 1e-11 ? 0.01 * rtol : 1e-11;
   double *ynew = malloc(sizeof(double) * n), *R = malloc(sizeof(double) * n);
   double *yt = malloc(sizeof(double) * n), *Rt = malloc(sizeof(double) * n);
   double *c = malloc(sizeof(double) * nsy);
@@ -475,9 +478,23 @@ int bl_adapt(const Problem *P, const Problem *P0, int nseg, const double *seg_h,
       if (w > 2.4) { h = 2.4 * ctl[2]; w = 2.4; }
       double u[4] = {h, w, seg_I[k], Tamb};
       memcpy(xn, y, sizeof(double) * nx);
-      if (have_right) memcpy(ynew, y0, sizeof(double) * n);
+      /* predictor: the quadratic (after two steps of this segment) or linear (after one) extrapolation of the
+         history, which the error estimate below measures the solution against; at a restart the right limit */
+      double l0 = 1.0, l1 = 0.0, l2 = 0.0;
+      if (nseg_steps >= 2) {
+        double h1 = ctl[2], h2 = ctl[3], t1 = -h1, t2 = -h1 - h2;
+        l0 = (h - t1) * (h - t2) / (t1 * t2);
+        l1 = h * (h - t2) / (t1 * (t1 - t2));
+        l2 = h * (h - t1) / (t2 * (t2 - t1));
+      } else if (nseg_steps == 1) {
+        l0 = 1.0 + h / ctl[2];
+        l1 = -h / ctl[2];
+      }
+      if (nseg_steps >= 1)
+        for (int i = 0; i < n; ++i) ynew[i] = l0 * yA[i] + l1 * yB[i] + (l2 != 0.0 ? l2 * yC[i] : 0.0);
+      else if (have_right) memcpy(ynew, y0, sizeof(double) * n);
       else memcpy(ynew, y, sizeof(double) * n);
-      it = newton(P, ynew, xn, xp, u, th, lu, &have_lu, R, yt, Rt, jnz, c, tol, maxit);
+      it = newton(P, ynew, xn, xp, u, th, lu, &have_lu, R, yt, Rt, jnz, c, tol, maxit, ntol);
       if (it == -2) { *code = -2; ret = k; goto done; }
       if (it < 0) { /* a smaller step from the same state */
         if (h < 1e-6) { *code = -1; ret = k; goto done; }
@@ -486,21 +503,17 @@ int bl_adapt(const Problem *P, const Problem *P0, int nseg, const double *seg_h,
       }
       *iters += it;
       if (nseg_steps >= 2) {
-        /* quadratic extrapolation through the starts of the last two steps and this one */
-        double h1 = ctl[2], h2 = ctl[3];
-        double t0 = 0.0, t1 = -h1, t2 = -h1 - h2, tau = h;
-        double l0 = (tau - t1) * (tau - t2) / ((t0 - t1) * (t0 - t2));
-        double l1 = (tau - t0) * (tau - t2) / ((t1 - t0) * (t1 - t2));
-        double l2 = (tau - t0) * (tau - t1) / ((t2 - t0) * (t2 - t1));
-        double scale = h / (h + h1 + h2);
+        /* the distance from the quadratic extrapolation through the starts of the last two steps and this one */
+        double scale = h / (h + ctl[2] + ctl[3]);
         for (int i = 0; i < nx; ++i) {
           double pred = l0 * yA[i] + l1 * yB[i] + l2 * yC[i];
           double e = fabs(ynew[i] - pred) * scale / (atol + rtol * fabs(ynew[i]));
           if (!(e <= err)) err = e;
         }
         if (!(err <= 1.0)) { /* rejected: redo smaller */
+          /* at most 0.8 h: the split rules (h = remaining within 1.2 h) must not bring the same step back */
           double f = 0.9 * pow(err, -1.0 / 3.0);
-          ctl[1] = h * (f > 0.2 ? f : 0.2);
+          ctl[1] = h * (f > 0.8 ? 0.8 : f > 0.2 ? f : 0.2);
           if (ctl[1] < 1e-6) { *code = -1; ret = k; goto done; }
           continue;
         }
@@ -538,12 +551,12 @@ int bl_adapt(const Problem *P, const Problem *P0, int nseg, const double *seg_h,
           double u0[4] = {0.0, 0.0, I_samp[m], Tamb};
           int beyond = 0;
           memcpy(y0, y, sizeof(double) * n);
-          it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
+          it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit, 1e-11);
           if (it == -1) {
             memcpy(y0, y, sizeof(double) * n);
             for (int q = 1; q <= 8; ++q) {
               u0[2] = seg_I[k] + (I_samp[m] - seg_I[k]) * q / 8.0;
-              it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit);
+              it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit, 1e-11);
               if (it < 0) break;
               output(P0, y0, u0, th, sel, 0, Sy0, o, 0, 0, vy, vth);
               if (!(o[0] >= limits[0] && o[0] <= limits[1])) { beyond = 1; break; }
@@ -589,6 +602,7 @@ int bl_adapt(const Problem *P, const Problem *P0, int nseg, const double *seg_h,
       if (nseg_steps < 2) ctl[1] = 2.0 * h;
       else {
         double f = err > 0.0 ? 0.9 * pow(err, -1.0 / 3.0) : growth;
+        if (f >= 1.0 && f < 1.5) f = 1.0; /* keep h (and so the chord matrix) unless it can grow by half */
         ctl[1] = h * (f < growth ? f : growth);
       }
       if (stop) { ret = k; goto done; }

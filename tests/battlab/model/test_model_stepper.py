@@ -29,8 +29,9 @@ def _pulses(n: int = 121) -> Profile:
 def test_compiled_and_casadi_steppers_agree(cell: battlab.Cell) -> None:
     prof = _pulses()
     names = ["R_s_n", "D_s_p", "k_n", "c_e0"]
-    a = battlab.simulate(cell, prof, soc0=0.6, sensitivities=names, backend="native")
-    b = battlab.simulate(cell, prof, soc0=0.6, sensitivities=names, backend="casadi")
+    fixed = solver.Settings(adaptive=False)  # the CasADi stepper's scheme: steps that end at every sample
+    a = battlab.simulate(cell, prof, soc0=0.6, sensitivities=names, backend="native", settings=fixed)
+    b = battlab.simulate(cell, prof, soc0=0.6, sensitivities=names, backend="casadi", settings=fixed)
     assert a.voltage.size == b.voltage.size == prof.t.size
     np.testing.assert_allclose(a.voltage, b.voltage, atol=1e-9)
     np.testing.assert_allclose(a.T_surface, b.T_surface, atol=1e-9)
@@ -43,9 +44,9 @@ def test_steps_across_samples_interpolate_within_the_scheme_accuracy(cell: battl
     stepping at every sample, the samples where the current changes (right limits) included, with fewer steps."""
     t = np.arange(0.0, 241.0)
     prof = Profile(t, np.where((t // 40.0) % 2 == 0, -8.1, 1.35))
-    aligned = battlab.simulate(cell, prof, soc0=0.6, settings=solver.Settings(across_samples=False))
+    aligned = battlab.simulate(cell, prof, soc0=0.6, settings=solver.Settings(adaptive=False))
     across = battlab.simulate(
-        cell, prof, soc0=0.6, settings=solver.Settings(across_samples=True, growth=1.2, dt_max=2.0)
+        cell, prof, soc0=0.6, settings=solver.Settings(adaptive=False, across_samples=True, growth=1.2, dt_max=2.0)
     )
     assert across.voltage.size == aligned.voltage.size == t.size
     assert across.stats["steps"] < 0.7 * aligned.stats["steps"]
@@ -103,13 +104,38 @@ def test_lu_program_solves_the_step_jacobian_at_another_state(cell: battlab.Cell
 
 def test_live_cell_reproduces_simulate(cell: battlab.Cell) -> None:
     prof = _pulses(91)
-    ref = battlab.simulate(cell, prof, soc0=0.6)
+    ref = battlab.simulate(cell, prof, soc0=0.6, settings=solver.Settings(adaptive=False))  # the live cell's steps
     live = LiveCell(cell, 0.6)
     v = np.array([live.step(i, 1.0, 298.15)[0] for i in prof.current[:-1]])
     same = prof.current[1:] == prof.current[:-1]  # where left and right limits coincide
     assert same.sum() > 50
     np.testing.assert_allclose(v[same], ref.voltage[1:][same], atol=1e-10)
     assert live.T_surface == pytest.approx(ref.T_surface[-1], abs=1e-9)
+
+
+def test_error_controlled_steps_follow_the_solution_and_replay_exactly(cell: battlab.Cell) -> None:
+    """Error-controlled steps (the default) cross the samples of a held current: on 1C from full charge with 1 s
+    samples they take under a fifth of the fixed scheme's steps and stay within 1 mV (RMSE 0.1 mV) of a
+    time-converged solution (measured 430 vs 3706 steps, 0.05 mV RMSE, 0.74 mV at most in the knee); replaying
+    the accepted steps reproduces the run and its sensitivities."""
+    t = np.arange(0.0, 3701.0)
+    prof = Profile(t, np.full(t.size, -2.7))
+    fine = battlab.simulate(
+        cell, prof, soc0=1.0, settings=solver.Settings(adaptive=False, dt_first=0.05, dt_max=0.25, growth=1.25)
+    )
+    fixed = battlab.simulate(cell, prof, soc0=1.0, settings=solver.Settings(adaptive=False))
+    res = battlab.simulate(cell, prof, soc0=1.0, sensitivities=["D_s_p", "k_n"])
+    assert res.ended_by == fine.ended_by and res.ended_by is not None and res.ended_by.startswith("V <")
+    n = min(res.voltage.size, fine.voltage.size)
+    assert abs(res.voltage.size - fine.voltage.size) <= 1
+    err = np.abs(res.voltage[:n] - fine.voltage[:n])
+    assert err.max() < 1e-3 and np.sqrt(np.mean(err**2)) < 1e-4, f"max {1e3 * err.max():.3f} mV"
+    assert res.stats["steps"] < 0.2 * fixed.stats["steps"]
+    again = battlab.simulate(
+        cell, prof, soc0=1.0, sensitivities=["D_s_p", "k_n"], settings=solver.Settings(replay=res.steps)
+    )
+    np.testing.assert_allclose(again.voltage, res.voltage, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(again.sensitivities, res.sensitivities, rtol=1e-6, atol=1e-9)
 
 
 def test_cells_differing_in_identified_parameters_share_the_compiled_model(cell: battlab.Cell) -> None:
