@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import math
 import socket
+import threading
 import time
 from pathlib import Path
 
@@ -32,6 +33,7 @@ from battlab.lab.steps import (
     ResistanceEstimate,
     Sample,
 )
+from drivers.chambers.watlow_f4t import WatlowF4T
 from drivers.clock import RealClock
 from drivers.scpi.cycler import ScpiCycler
 from protocols import Profile
@@ -275,6 +277,52 @@ def test_the_safe_shutdown_of_a_dead_link_sends_output_off_without_waiting_for_i
     assert bytes(received).splitlines() == [b"OUTP 0"]
     assert not out.output_off_confirmed and out.output_off_sent_t_s is not None and out.t_s >= out.output_off_sent_t_s
     assert out.current_after_A is None and any("not confirmed" in p for p in out.problems)
+
+
+class SilentServer:
+    """A loopback TCP server that accepts every connection and never answers (a hung instrument); counts them."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(8)
+        self.sock.settimeout(0.05)
+        self.port = int(self.sock.getsockname()[1])
+        self.connections: list[socket.socket] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._accept, daemon=True)
+        self._thread.start()
+
+    def _accept(self) -> None:
+        while not self._stop.is_set():
+            with contextlib.suppress(TimeoutError, OSError):
+                self.connections.append(self.sock.accept()[0])
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        for c in [*self.connections, self.sock]:
+            c.close()
+
+
+def test_after_a_dead_cycler_link_a_hung_chamber_is_asked_once(tmp_path: Path) -> None:
+    """The tester hung (cycler and chamber in one process): the safe shutdown sends output off and asks the chamber
+    for its safe set point once, without the chamber driver's retries (each a link timeout more)."""
+    cycler_side, chamber_side = SilentServer(), SilentServer()
+    try:
+        cycler = ScpiCycler.open(f"socket://127.0.0.1:{cycler_side.port}", timeout_s=0.1, retries=0)
+        chamber = WatlowF4T.open(f"modbus-tcp://127.0.0.1:{chamber_side.port}", timeout_s=0.1, retries=2)
+        try:
+            out = safe_shutdown(cycler, chamber, 25.0, clock=RealClock(), unreachable=(cycler,))
+        finally:
+            cycler.close()
+            chamber.close()
+        assert len(chamber_side.connections) == 1  # one attempt: a retry reconnects first
+        assert chamber.retries == 2  # the driver's setting is restored
+        assert out.chamber_set_point_degC is None and any("chamber to 25 degC" in p for p in out.problems)
+    finally:
+        cycler_side.close()
+        chamber_side.close()
 
 
 # -- catalog --------------------------------------------------------------------------------------------------
