@@ -21,9 +21,11 @@ from battlab.io.logs import open_log, read_log
 from battlab.lab import logfile
 from battlab.lab.catalog import Catalog, RunLock
 from battlab.lab.documents import LogSink, RunStart
+from battlab.lab.engine import HEARTBEAT_S, RunEngine
 from battlab.lab.limits import VIRTUAL_LIMITS, CellWindow, Envelope, InstrumentLimits
 from battlab.lab.plan import Plan
 from battlab.lab.preflight import check_plan
+from battlab.lab.run_state import RunStats
 from battlab.lab.safety import check_sample, safe_shutdown
 from battlab.lab.steps import (
     CCCVExecutor,
@@ -277,6 +279,41 @@ def test_the_safe_shutdown_of_a_dead_link_sends_output_off_without_waiting_for_i
     assert bytes(received).splitlines() == [b"OUTP 0"]
     assert not out.output_off_confirmed and out.output_off_sent_t_s is not None and out.t_s >= out.output_off_sent_t_s
     assert out.current_after_A is None and any("not confirmed" in p for p in out.problems)
+
+
+class StepClock:
+    """A 1x clock that moves only when slept on, standing in for the engine in :meth:`RunEngine._wait_until`:
+    records the times it watched the instruments."""
+
+    speed = 1.0
+
+    def __init__(self) -> None:
+        self.t = 0.0
+        self.heartbeats: list[float] = []
+        self.stats = RunStats()
+        self._stop_reason = None
+        self.clock = self
+
+    def now(self) -> float:
+        return self.t
+
+    def sleep(self, dt_s: float) -> None:
+        self.t += max(0.0, dt_s)
+
+    def _heartbeat(self) -> None:
+        self.heartbeats.append(self.t)
+
+
+@pytest.mark.parametrize("wait_s", [0.05, 0.2, 0.21, 0.29, 0.5, 0.79, 0.99, 3.3])
+def test_between_samples_the_instruments_are_watched_at_most_a_heartbeat_apart(wait_s: float) -> None:
+    """At 1x a dead link is noticed at the next exchange: no stretch without one is longer than HEARTBEAT_S, and
+    there are no more watches than that needs."""
+    fake = StepClock()
+    RunEngine._wait_until(fake, wait_s)  # type: ignore[arg-type]
+    times = [0.0, *fake.heartbeats, fake.t]
+    assert fake.t == pytest.approx(wait_s)
+    assert max(np.diff(times)) <= HEARTBEAT_S + 1e-9
+    assert len(fake.heartbeats) == math.ceil(wait_s / HEARTBEAT_S - 1e-9) - 1
 
 
 class SilentServer:
