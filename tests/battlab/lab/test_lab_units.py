@@ -19,13 +19,14 @@ from lab_helpers import plan_from
 from battlab.cell import Cell
 from battlab.io.logs import open_log, read_log
 from battlab.lab import logfile
+from battlab.lab.calls import InstrumentCalls
 from battlab.lab.catalog import Catalog, RunLock
 from battlab.lab.documents import LogSink, RunStart
 from battlab.lab.engine import HEARTBEAT_S, RunEngine
 from battlab.lab.limits import VIRTUAL_LIMITS, CellWindow, Envelope, InstrumentLimits
 from battlab.lab.plan import Plan
 from battlab.lab.preflight import check_plan
-from battlab.lab.run_state import RunStats
+from battlab.lab.run_state import Abort, RunStats
 from battlab.lab.safety import check_sample, safe_shutdown
 from battlab.lab.steps import (
     CCCVExecutor,
@@ -360,6 +361,26 @@ def test_after_a_dead_cycler_link_a_hung_chamber_is_asked_once(tmp_path: Path) -
     finally:
         cycler_side.close()
         chamber_side.close()
+
+
+def test_a_call_to_a_hung_instrument_ends_within_its_budget() -> None:
+    """A hung instrument at 1x (link timeout 0.2 s, budget 0.3 s): the first attempt times out, the retry gets what
+    is left of the budget as its timeout, so the run aborts at the budget, not a whole link timeout after it."""
+    server = SilentServer()
+    try:
+        cycler = ScpiCycler.open(f"socket://127.0.0.1:{server.port}", timeout_s=0.2, retries=0)
+        calls = InstrumentCalls(retries=3, backoff_s=0.5, clock=RealClock(), stats=RunStats(), budget_s=0.3)
+        w0 = time.perf_counter()
+        with pytest.raises(Abort, match="measure failed after 2 attempts") as info:
+            calls.call("measure", cycler.measure)
+        elapsed = time.perf_counter() - w0
+        cycler.close()
+        assert info.value.kind == "communication" and info.value.device is cycler
+        assert cycler.adapter.timeout_s == 0.2  # restored
+        assert len(server.connections) == 2  # the retry reconnected first
+        assert elapsed <= 0.3 + 0.05  # a whole second timeout would end at 0.42 s
+    finally:
+        server.close()
 
 
 # -- catalog --------------------------------------------------------------------------------------------------
