@@ -409,6 +409,7 @@ def protocol_file(draw: st.DrawFn) -> tuple[bytes, str]:
 @given(spec=protocol_file())
 @example(spec=(b"\x80", ".toml"))  # binary, not UTF-8
 @example(spec=(VALID_PROTOCOL.replace("current = -1.35", "current = 14").encode(), ".toml"))  # beyond the limits
+@example(spec=(VALID_PROTOCOL.replace("time >= 60", "time >= 1e-4").encode(), ".toml"))  # finer than Maccor's
 def test_export_protocol_files(shared: dict[str, Path], spec: tuple[bytes, str]) -> None:
     """``export FILE --format maccor -o DIR`` with broken protocol TOML/JSON."""
     content, suffix = spec
