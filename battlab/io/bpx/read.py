@@ -194,7 +194,10 @@ def read_bpx(path: str | Path) -> Cell:
                 values.pop(key, None)
         for key in EXT_KEYS:
             if EXT + key in user:
-                values[key] = as_function(_user_value(user[EXT + key]))
+                try:
+                    values[key] = as_function(_user_value(user[EXT + key]))
+                except InputError as exc:
+                    raise InputError(f"{path}: BPX field Parameterisation.User-defined.{EXT + key}: {exc}") from None
                 sources[key] = src + " (battlab extension)"
     header = model.header
     desc = " ".join(t for t in (header.title, header.description) if t)
