@@ -256,6 +256,12 @@ def _mutations() -> list[tuple[str, Any, str]]:
     def user_mapping(o: dict) -> None:
         o["Parameterisation"]["User-defined"]["battlab: C1"] = {"": 0.0}
 
+    def user_call_of_text(o: dict) -> None:
+        o["Parameterisation"]["User-defined"]["battlab: h12"] = "exec('import os')"
+
+    def ocp_call_of_text(o: dict) -> None:
+        o["Parameterisation"]["Negative electrode"]["OCP [V]"] = "exec('import os')"
+
     def user_table_decreasing(o: dict) -> None:
         o["Parameterisation"]["User-defined"]["battlab: C1"] = {"x": [2.0, 1.0], "y": [1.0, 2.0]}
 
@@ -269,6 +275,8 @@ def _mutations() -> list[tuple[str, Any, str]]:
         ("spm", spm, "SPM"),
         ("porosity", porosity_one, "Porosity"),
         ("user mapping", user_mapping, "Parameterisation.User-defined.battlab: C1: expected a number"),
+        ("user call", user_call_of_text, "Parameterisation.User-defined"),
+        ("ocp call", ocp_call_of_text, "Negative electrode"),
         ("user table", user_table_decreasing, "Parameterisation.User-defined.battlab: C1: table: x must increase"),
     ]
 
