@@ -238,6 +238,7 @@ PROFILE_FILE = st.one_of(table_csv(PROFILE_COLUMNS, plausible_profile), other_fo
 @given(content=PROFILE_FILE, suffix=st.sampled_from([".csv", ".csv", ".bdf.csv"]))
 @example(content=b"\x80", suffix=".csv")  # binary, not UTF-8
 @example(content=b"Test Time / s,Current / A\n0\x00,0\n", suffix=".csv")  # NUL byte
+@example(content=b"Test Time / s,Current / A\n-1e30,0.0\n-1e-211,0.0\n", suffix=".csv")  # 1e30 s: ran for ever
 def test_simulate_profile_files(shared: dict[str, Path], content: bytes, suffix: str) -> None:
     """``simulate nca18650 PROFILE -o OUT`` with truncated, mistyped, non-finite, huge or non-monotonic profiles."""
     with dirs() as (inp, out):
