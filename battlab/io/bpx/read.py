@@ -246,6 +246,10 @@ def validate(raw: dict[str, Any], where: str) -> Any:
             at = f"BPX field {field}: " if field else ""
             msg = f"not a valid BPX function of x at character {exc.loc + 1}{_GRAMMAR}"
             raise InputError(f"{where}: {at}{msg}") from None
+        except RecursionError:  # the parser recurses once per parenthesis
+            field = _unparsable_function(raw)
+            at = f"BPX field {field}: " if field else ""
+            raise InputError(f"{where}: {at}a function nested too deeply for the BPX parser") from None
         except (ValueError, TypeError, KeyError, AttributeError) as exc:
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise InputError(f"{where}: invalid BPX ({first})") from None
@@ -266,7 +270,7 @@ def _unparsable_function(raw: Any, prefix: str = "") -> str | None:
         if isinstance(value, str) and key != "description":
             try:
                 BpxFunction.parser.parse_string(value)
-            except ParseBaseException:
+            except (ParseBaseException, RecursionError):
                 return path
         elif isinstance(value, Mapping):
             found = _unparsable_function(value, path)

@@ -259,6 +259,9 @@ def _mutations() -> list[tuple[str, Any, str]]:
     def user_call_of_text(o: dict) -> None:
         o["Parameterisation"]["User-defined"]["battlab: h12"] = "exec('import os')"
 
+    def user_deep_nesting(o: dict) -> None:
+        o["Parameterisation"]["User-defined"]["battlab: h12"] = "(" * 500 + "x" + ")" * 500
+
     def ocp_call_of_text(o: dict) -> None:
         o["Parameterisation"]["Negative electrode"]["OCP [V]"] = "exec('import os')"
 
@@ -277,6 +280,7 @@ def _mutations() -> list[tuple[str, Any, str]]:
         ("user mapping", user_mapping, "Parameterisation.User-defined.battlab: C1: expected a number"),
         ("user call", user_call_of_text, "Parameterisation.User-defined"),
         ("ocp call", ocp_call_of_text, "Negative electrode"),
+        ("user nesting", user_deep_nesting, "User-defined.battlab: h12: a function nested too deeply"),
         ("user table", user_table_decreasing, "Parameterisation.User-defined.battlab: C1: table: x must increase"),
     ]
 
