@@ -106,7 +106,10 @@ def _check_value(key: str, value: Any) -> Value:
     if key not in KEYS:
         raise InputError(f"unknown cell parameter {key!r}")
     spec = KEYS[key]
-    v = as_function(value, ("x",))
+    try:
+        v = as_function(value, ("x",))
+    except InputError as exc:
+        raise InputError(f"cell parameter {key}: {exc}") from None
     if isinstance(v, float):
         if not math.isfinite(v):
             raise InputError(f"cell parameter {key}: expected a finite number [{spec.unit}], got {value!r}")

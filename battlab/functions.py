@@ -168,7 +168,12 @@ def as_function(value: Any, variables: tuple[str, ...] = ("x",)) -> Function | f
     if isinstance(value, str):
         return Expr(value, variables)
     if isinstance(value, dict) and set(value) >= {"x", "y"}:
-        return Table(tuple(value["x"]), tuple(value["y"]))
+        try:
+            return Table(tuple(value["x"]), tuple(value["y"]))
+        except InputError:
+            raise
+        except (TypeError, ValueError):  # not lists, or not of numbers
+            raise InputError(f"table: x and y must be lists of numbers, got {value!r}") from None
     raise InputError(f"expected a number, expression string or {{'x': [...], 'y': [...]}} table, got {value!r}")
 
 

@@ -53,6 +53,11 @@ class Result:
 LIMIT_ROUNDOFF = 1e-9
 
 
+#: the most solver steps one simulation may take (about 40 s of the compiled stepper at 36 µs a step): a profile
+#: spanning more (over 10^7 s = 116 days at the default 10 s longest step) is refused, not left to run for years
+MAX_STEPS = 1_000_000
+
+
 def simulate(
     cell: Cell,
     profile: Profile,
@@ -102,6 +107,12 @@ def simulate(
     # a state on a limit to round-off (a rest at 100 % SOC: OCV = V_max) is within it
     limits = {"V_min": vmin - LIMIT_ROUNDOFF, "V_max": vmax + LIMIT_ROUNDOFF, "T_max": float(cell["T_max"])}
     t = profile.t - profile.t[0]
+    if t[-1] / settings.dt_max > MAX_STEPS:
+        raise InputError(
+            f"the profile spans {t[-1]:.4g} s: more than the "
+            f"{MAX_STEPS:,} solver steps of at most {settings.dt_max:g} s a simulation may take "
+            f"({MAX_STEPS * settings.dt_max:.3g} s); split it"
+        )
     args = (t, to_model_current(profile.current), float(ambient), theta_bar, soc0, float(ambient if T0 is None else T0))
     stepper = _native(cell, mesh, isothermal) if backend in ("native", "auto") else None
     if stepper is not None:

@@ -71,7 +71,13 @@ def export(
     check_output_path(out_dir, directory=True, create=True)
     f = Format.parse(fmt)
     obj = load_source(source, library_path)
-    result = export_to(obj, f, out_dir, name=name, max_steps=max_steps, max_current_a=max_current)
+    try:
+        result = export_to(obj, f, out_dir, name=name, max_steps=max_steps, max_current_a=max_current)
+    except InputError as exc:
+        # what the exporters refuse names the protocol and the step; the file they came from is the user's
+        if Path(source).is_file() and source not in str(exc):
+            raise InputError(f"{source}: {exc}") from None
+        raise
     for path in result.files:
         click.echo(f"wrote {path}")
     for note in result.notes:

@@ -74,16 +74,19 @@ def simulate(
     _announce_compiles()
     T0 = None if t0 is None else t0 + 273.15
     with console.status(f"simulating {Path(profile).name} on {c.name} ({prof.duration:.0f} s)"):
-        res = run(
-            c,
-            prof,
-            soc0=soc0,
-            ambient=ambient + 273.15,
-            isothermal=isothermal,
-            sensitivities=names,
-            T0=T0,
-            v_limits=limits,
-        )
+        try:
+            res = run(
+                c,
+                prof,
+                soc0=soc0,
+                ambient=ambient + 273.15,
+                isothermal=isothermal,
+                sensitivities=names,
+                T0=T0,
+                v_limits=limits,
+            )
+        except InputError as exc:
+            raise InputError(f"{profile}: {exc}") from None
     timing = f"build {res.stats['build_seconds']:.2f} s, solve {res.stats['solve_seconds']:.2f} s"
     if res.t.size < 2:
         raise InputError(

@@ -20,7 +20,7 @@ log = logging.getLogger("battlab.lab")
 
 VIRTUAL = "virtual"
 #: link timeout on an accelerated clock, in virtual seconds, and at most this many real seconds: a reply lost on a
-#: 1x bench costs one such wait and a retry, and a dead instrument stops the run within about a second (a URL's own
+#: 1x bench costs one such wait and a retry, and a dead instrument stops the run within a second (a URL's own
 #: ``timeout=`` option wins)
 LINK_TIMEOUT_VIRTUAL_S = 15.0
 REAL_LINK_TIMEOUT_S = 0.2

@@ -3,16 +3,19 @@ instrument errors and faults turned into an :class:`~battlab.lab.run_state.Abort
 noted rather than fatal.
 
 Retries are bounded twice: by count (``retries``) and by real time (``budget_s``, from the call's start), so that a
-dead instrument stops the run within about a second at any clock speed while a short blip (a lost reply, a dropped
-connection) is retried. The back-off doubles from ``backoff_s`` of the run clock, at most ``MAX_BACKOFF_S`` real
-seconds: on a 1x clock a plan's 0.5 s first back-off would eat the whole budget.
+dead instrument stops the run within a second at any clock speed while a short blip (a lost reply, a dropped
+connection) is retried. A retry's link timeout is cut to what is left of the budget (a healthy reply after a
+reconnect takes milliseconds), so a call that keeps failing ends within the budget, not a full link timeout after
+it. The back-off doubles from ``backoff_s`` of the run clock, at most ``MAX_BACKOFF_S`` real seconds: on a 1x clock
+a plan's 0.5 s first back-off would eat the whole budget.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
 
 from battlab.lab.run_state import Abort, RunStats
@@ -23,10 +26,14 @@ from protocols.errors import InputError
 log = logging.getLogger("battlab.lab")
 T = TypeVar("T")
 
-#: real seconds a failing call may take, its attempts, resyncs and back-offs together, before the run aborts
-BUDGET_S = 0.4
+#: real seconds a failing call may take, its attempts, resyncs and back-offs together, before the run aborts: at 1x
+#: (link timeout 0.2 s) a timed-out attempt, a dropped connection and a retry with the rest (over 0.05 s)
+BUDGET_S = 0.35
 #: the longest back-off between two attempts / real s
 MAX_BACKOFF_S = 0.02
+#: the shortest link timeout a retry is given / real s (a loaded host delays a loopback reply by tens of ms): with
+#: less of the budget left the call fails without it
+MIN_RETRY_TIMEOUT_S = 0.05
 
 
 class InstrumentCalls:
@@ -50,10 +57,14 @@ class InstrumentCalls:
         try:
             for attempt in range(self.retries + 1):
                 try:
-                    return fn(*args)
+                    if attempt == 0:
+                        return fn(*args)
+                    left = self.budget_s - (time.perf_counter() - w0)
+                    with link_timeout_at_most(fn, max(left, MIN_RETRY_TIMEOUT_S)):
+                        return fn(*args)
                 except CommunicationError as exc:
                     elapsed = time.perf_counter() - w0
-                    if attempt == self.retries or elapsed + delay > self.budget_s:
+                    if attempt == self.retries or elapsed + delay + MIN_RETRY_TIMEOUT_S > self.budget_s:
                         raise Abort(
                             "communication",
                             f"{what} failed after {attempt + 1} attempts in {elapsed:.2f} s: {exc}",
@@ -82,6 +93,22 @@ class InstrumentCalls:
             self.stats.notes.append(f"{what}: not available ({exc}); runner-side checks only")
             log.warning("%s: not available: %s", what, exc)
             return False
+
+
+@contextlib.contextmanager
+def link_timeout_at_most(fn: Callable[..., Any], timeout_s: float) -> Iterator[None]:
+    """The link timeout of ``fn``'s instrument (its adapter's ``timeout_s``, where it has one) at most ``timeout_s``
+    for the duration."""
+    adapter = getattr(getattr(fn, "__self__", None), "adapter", None)
+    old = getattr(adapter, "timeout_s", None)
+    if not isinstance(old, float) or old <= timeout_s:
+        yield
+        return
+    adapter.timeout_s = timeout_s  # type: ignore[union-attr]
+    try:
+        yield
+    finally:
+        adapter.timeout_s = old  # type: ignore[union-attr]
 
 
 def resync(fn: Callable[..., Any]) -> None:

@@ -310,15 +310,17 @@ class RunEngine:
         self._pending_stop = (entry, count, ended, self._last.t if self._last else None, self._rows)
 
     def _wait_until(self, t_sched: float) -> None:
-        """Sleep until ``t_sched`` (run clock); on a slow clock watch the instruments every ``HEARTBEAT_S`` real
-        seconds meanwhile (:meth:`_heartbeat`). Returns early on a stop request."""
+        """Sleep until ``t_sched`` (run clock); on a slow clock watch the instruments meanwhile
+        (:meth:`_heartbeat`), evenly spaced at most ``HEARTBEAT_S`` real seconds apart and from the sample on
+        either side, so that no stretch without I/O is longer. Returns early on a stop request."""
         step = HEARTBEAT_S * float(getattr(self.clock, "speed", 1.0))
         while True:
             remaining = t_sched - self.clock.now()
-            if remaining <= 1.5 * step or self._stop_reason is not None:
+            intervals = math.ceil(remaining / step) if remaining > 0 else 0
+            if intervals <= 1 or self._stop_reason is not None:
                 break
             w0 = time.perf_counter()
-            self.clock.sleep(step)
+            self.clock.sleep(remaining / intervals)
             self.stats.sleep_wall_s += time.perf_counter() - w0
             self._heartbeat()
         w0 = time.perf_counter()

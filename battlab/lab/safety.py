@@ -12,9 +12,10 @@ its safe set point; it returns what it could and could not do, for the record.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
-from collections.abc import Collection
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -104,7 +105,8 @@ def safe_shutdown(
 
     An instrument in ``unreachable`` (its link just failed) is spared what would wait out its link's timeouts, so
     the run stops at once: the cycler gets output off sent once (``send_off``: a write without waiting for a
-    confirmation, where the driver has it), nothing more; the chamber is left as it is.
+    confirmation, where the driver has it), nothing more; the chamber is left as it is. When the cycler's
+    link died, the chamber gets its set point in one attempt, without the driver's retries.
     """
     out = Shutdown()
     now = clock.now if clock is not None else (lambda: None)
@@ -150,7 +152,10 @@ def safe_shutdown(
         out.problems.append("chamber unreachable: its set point is unchanged")
     elif chamber is not None and safe_set_point_degC is not None:
         try:
-            chamber.set_point(safe_set_point_degC)
+            # after a dead link the chamber is asked once: it may share the cause (the same host, network or
+            # tester process), and the stop must not wait out its retries too
+            with _one_attempt(chamber) if unreachable else contextlib.nullcontext():
+                chamber.set_point(safe_set_point_degC)
             out.chamber_set_point_degC = safe_set_point_degC
         except (InstrumentError, OSError, ValueError) as exc:
             out.problems.append(f"chamber to {safe_set_point_degC:g} degC: {exc}")
@@ -158,6 +163,20 @@ def safe_shutdown(
         log.error("safe shutdown: %s", p)
     out.t_s = now()
     return out
+
+
+@contextlib.contextmanager
+def _one_attempt(device: object) -> Iterator[None]:
+    """The driver's link retries (its ``retries``, where it has one) off for the duration."""
+    retries = getattr(device, "retries", None)
+    if not isinstance(retries, int) or retries == 0:
+        yield
+        return
+    device.retries = 0  # type: ignore[attr-defined]
+    try:
+        yield
+    finally:
+        device.retries = retries  # type: ignore[attr-defined]
 
 
 __all__ = ["CURRENT_TOL_A", "CURRENT_TOL_REL", "Shutdown", "Violation", "check_sample", "safe_shutdown"]

@@ -48,6 +48,16 @@ class WatlowF4T:
         regs = PymodbusRegisters.from_url(parsed, name=name or parsed.raw, timeout_s=timeout_s, retries=retries)
         return cls(regs, loop=loop, name=name or f"chamber[{parsed.raw}]")
 
+    @property
+    def retries(self) -> int:
+        """Extra attempts for an exchange that failed on the link (the register adapter's; 0 if it has none)."""
+        return int(getattr(self.registers, "retries", 0))
+
+    @retries.setter
+    def retries(self, n: int) -> None:
+        if hasattr(self.registers, "retries"):
+            self.registers.retries = n
+
     # -- helpers ------------------------------------------------------------------------------------------
     def _reg(self, base: int) -> int:
         return wc.loop_register(base, self.loop)

@@ -10,6 +10,9 @@ never writes a different profile.
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 from datetime import datetime
 from pathlib import Path
 from types import ModuleType
@@ -60,18 +63,35 @@ def export(
     ``max_steps`` overrides the format's step/segment limit; ``limits`` are the safety limits used when
     ``source`` is a bare profile; ``created`` stamps formats that carry a date (Neware); ``max_current_a``
     is the cycler channel's current range [A] (steps beyond it are refused).
+
+    The files are written into a staging directory and moved into ``out_dir`` only when the whole export
+    succeeded: a refusal found while writing (a time finer than the format's, too many steps) leaves neither
+    files nor directories behind.
     """
     f = Format.parse(fmt)
     protocol = as_protocol(source, limits).check()
     if max_current_a is not None:
         check_cycler_current(protocol, max_current_a)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     module = MODULES[f]
     kwargs = {"name": name, "rules": module.RULES.with_max_steps(max_steps)}
     if f is Format.NEWARE:
         kwargs["created"] = created
-    return module.write(protocol, out, **kwargs)
+    anchor = out
+    while not anchor.exists() and anchor != anchor.parent:
+        anchor = anchor.parent  # the staging directory goes on the same file system as out_dir
+    staging = Path(tempfile.mkdtemp(prefix=".export-", dir=anchor))
+    try:
+        result = module.write(protocol, staging, **kwargs)
+        out.mkdir(parents=True, exist_ok=True)
+        files = []
+        for written in result.files:
+            target = out / written.relative_to(staging)
+            os.replace(written, target)
+            files.append(target)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return ExportResult(tuple(files), result.notes)
 
 
 def read_back(fmt: Format | str, path: str | Path) -> ReadBack:

@@ -251,6 +251,18 @@ def test_toml_round_trip_with_a_table(tmp_path: Path, cell: Cell) -> None:
     assert back.sources == new.sources
 
 
+@pytest.mark.parametrize("table", [{"x": 5, "y": 1}, {"x": ["a", "b"], "y": [1, 2]}])
+def test_a_table_that_is_not_lists_of_numbers_names_the_file_and_parameter(
+    tmp_path: Path, cell: Cell, table: dict[str, object]
+) -> None:
+    data = cell.to_toml_dict()
+    data["parameters"]["D_e"]["value"] = table
+    path = tmp_path / "cell.toml"
+    path.write_text(tomli_w.dumps(data))
+    with pytest.raises(InputError, match=r"cell.toml: .*D_e.*table: x and y must be lists of numbers"):
+        Cell.load(path)
+
+
 def test_load_errors(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="not a built-in cell"):
         Cell.load("no-such-cell")

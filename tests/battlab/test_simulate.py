@@ -282,3 +282,10 @@ def test_more_current_than_the_cell_can_carry_is_a_voltage_limit(nca18650: Cell)
         res = battlab.simulate(nca18650, lib[721], soc0=soc0, ambient=263.15, v_limits=(2.0, 4.5))
         assert res.ended_by is not None and res.ended_by.startswith("V < 2 (no solution at"), res.ended_by
         assert res.t.size == peak_at and np.isfinite(res.voltage).all()
+
+
+def test_a_profile_spanning_more_than_the_step_budget_is_refused_at_once(nca18650: Cell) -> None:
+    """10^30 s of rest would take 10^29 solver steps: refused before the model is built."""
+    prof = Profile(np.array([-1e30, -1e-211]), np.zeros(2), soc0=0.5)
+    with pytest.raises(InputError, match=r"the profile spans 1e\+30 s: more than the 1,000,000 solver steps"):
+        battlab.simulate(nca18650, prof)

@@ -194,7 +194,10 @@ def read_bpx(path: str | Path) -> Cell:
                 values.pop(key, None)
         for key in EXT_KEYS:
             if EXT + key in user:
-                values[key] = as_function(_user_value(user[EXT + key]))
+                try:
+                    values[key] = as_function(_user_value(user[EXT + key]))
+                except InputError as exc:
+                    raise InputError(f"{path}: BPX field Parameterisation.User-defined.{EXT + key}: {exc}") from None
                 sources[key] = src + " (battlab extension)"
     header = model.header
     desc = " ".join(t for t in (header.title, header.description) if t)
@@ -223,10 +226,14 @@ _HEADER = {"Model", "BPX", "Title", "Description", "References"}
 _TYPE_TAG = re.compile(r"^(float|int|str|bool|none|list\[.*\]|dict\[.*\]|InterpolatedTable|function-.*|json-.*)$")
 
 
+_GRAMMAR = " (numbers, x, + - * / ** and calls such as exp(), tanh())"
+
+
 def validate(raw: dict[str, Any], where: str) -> Any:
     """Validate with the ``bpx`` package; any failure becomes one line naming the field."""
     import bpx
     from pydantic import ValidationError
+    from pyparsing import ParseBaseException
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # legacy-migration notes, float version, STO-limit checks
@@ -234,9 +241,42 @@ def validate(raw: dict[str, Any], where: str) -> Any:
             return bpx.parse_bpx_obj(raw)
         except ValidationError as exc:
             raise InputError(f"{where}: {_describe(exc)}") from None
+        except ParseBaseException as exc:  # bpx lets the parser's fail-fast errors through (e.g. "exec('x')")
+            field = _unparsable_function(raw)
+            at = f"BPX field {field}: " if field else ""
+            msg = f"not a valid BPX function of x at character {exc.loc + 1}{_GRAMMAR}"
+            raise InputError(f"{where}: {at}{msg}") from None
+        except RecursionError:  # the parser recurses once per parenthesis
+            field = _unparsable_function(raw)
+            at = f"BPX field {field}: " if field else ""
+            raise InputError(f"{where}: {at}a function nested too deeply for the BPX parser") from None
         except (ValueError, TypeError, KeyError, AttributeError) as exc:
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise InputError(f"{where}: invalid BPX ({first})") from None
+
+
+def _unparsable_function(raw: Any, prefix: str = "") -> str | None:
+    """The dotted path of the first string under ``Parameterisation`` that bpx's expression parser refuses."""
+    from bpx.function import Function as BpxFunction
+    from pyparsing import ParseBaseException
+
+    if not prefix:
+        raw = raw.get("Parameterisation") if isinstance(raw, Mapping) else None
+        prefix = "Parameterisation"
+    if not isinstance(raw, Mapping):
+        return None
+    for key, value in raw.items():
+        path = f"{prefix}.{key}"
+        if isinstance(value, str) and key != "description":
+            try:
+                BpxFunction.parser.parse_string(value)
+            except (ParseBaseException, RecursionError):
+                return path
+        elif isinstance(value, Mapping):
+            found = _unparsable_function(value, path)
+            if found:
+                return found
+    return None
 
 
 def _describe(exc: Any) -> str:
@@ -256,7 +296,7 @@ def _describe(exc: Any) -> str:
         if msg.startswith("Invalid Function"):
             where = re.search(r"\(at char (\d+)\)", msg)
             at = f" at character {int(where.group(1)) + 1}" if where else ""
-            msg = f"not a valid BPX function of x{at} (numbers, x, + - * / ** and calls such as exp(), tanh())"
+            msg = f"not a valid BPX function of x{at}{_GRAMMAR}"
     elif first["type"] == "missing":
         msg = "required field is missing"
     elif any(t.startswith(("function", "InterpolatedTable")) for t in tags):

@@ -253,6 +253,21 @@ def _mutations() -> list[tuple[str, Any, str]]:
     def porosity_one(o: dict) -> None:
         o["Parameterisation"]["Negative electrode"]["Porosity"] = 1.0
 
+    def user_mapping(o: dict) -> None:
+        o["Parameterisation"]["User-defined"]["battlab: C1"] = {"": 0.0}
+
+    def user_call_of_text(o: dict) -> None:
+        o["Parameterisation"]["User-defined"]["battlab: h12"] = "exec('import os')"
+
+    def user_deep_nesting(o: dict) -> None:
+        o["Parameterisation"]["User-defined"]["battlab: h12"] = "(" * 500 + "x" + ")" * 500
+
+    def ocp_call_of_text(o: dict) -> None:
+        o["Parameterisation"]["Negative electrode"]["OCP [V]"] = "exec('import os')"
+
+    def user_table_decreasing(o: dict) -> None:
+        o["Parameterisation"]["User-defined"]["battlab: C1"] = {"x": [2.0, 1.0], "y": [1.0, 2.0]}
+
     return [
         ("missing field", drop_area, "Parameterisation.Cell.Electrode area [m2]: required field is missing"),
         ("function", bad_ocp, "Parameterisation.Positive electrode.OCP [V]: not a valid BPX function of x"),
@@ -262,6 +277,11 @@ def _mutations() -> list[tuple[str, Any, str]]:
         ("blended", blended, "blended electrodes are not supported"),
         ("spm", spm, "SPM"),
         ("porosity", porosity_one, "Porosity"),
+        ("user mapping", user_mapping, "Parameterisation.User-defined.battlab: C1: expected a number"),
+        ("user call", user_call_of_text, "Parameterisation.User-defined"),
+        ("ocp call", ocp_call_of_text, "Negative electrode"),
+        ("user nesting", user_deep_nesting, "User-defined.battlab: h12: a function nested too deeply"),
+        ("user table", user_table_decreasing, "Parameterisation.User-defined.battlab: C1: table: x must increase"),
     ]
 
 

@@ -7,7 +7,8 @@ serve``) each in its own process, so that a kill -9, a SIGSTOP and a death are t
 - death of the tester (SIGKILL) or a hung tester (SIGSTOP): the run stops within a second, output off sent.
 
 Fault and stop times are compared on the tester's clock (tracked here from one probe before the run, without further
-I/O), with generous bounds: the defects were seconds to minutes.
+I/O). The bound is the requirement, 1 s from the fault to the stop (measured about 0.75 s at most for a hung tester);
+the defects were seconds to minutes.
 """
 
 from __future__ import annotations
@@ -198,7 +199,7 @@ def test_death_of_the_tester_at_1x_stops_the_run_within_a_second(
     assert (
         final["status"] == "aborted" and final["reason"].startswith("communication: ") and "cycler" in final["reason"]
     )
-    assert 0.0 < sent <= 1.0 and stopped <= 1.5
+    assert 0.0 < sent <= 1.0 and stopped <= 1.0
     assert data.t[-1] + data.meta["t0_s"] >= t_fault - 1.5  # the samples up to the fault are kept
     check_gaps(data)
     assert Catalog().list()[0].status == "aborted"

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import math
 import socket
+import threading
 import time
 from pathlib import Path
 
@@ -18,11 +19,14 @@ from lab_helpers import plan_from
 from battlab.cell import Cell
 from battlab.io.logs import open_log, read_log
 from battlab.lab import logfile
+from battlab.lab.calls import InstrumentCalls
 from battlab.lab.catalog import Catalog, RunLock
 from battlab.lab.documents import LogSink, RunStart
+from battlab.lab.engine import HEARTBEAT_S, RunEngine
 from battlab.lab.limits import VIRTUAL_LIMITS, CellWindow, Envelope, InstrumentLimits
 from battlab.lab.plan import Plan
 from battlab.lab.preflight import check_plan
+from battlab.lab.run_state import Abort, RunStats
 from battlab.lab.safety import check_sample, safe_shutdown
 from battlab.lab.steps import (
     CCCVExecutor,
@@ -32,6 +36,7 @@ from battlab.lab.steps import (
     ResistanceEstimate,
     Sample,
 )
+from drivers.chambers.watlow_f4t import WatlowF4T
 from drivers.clock import RealClock
 from drivers.scpi.cycler import ScpiCycler
 from protocols import Profile
@@ -275,6 +280,107 @@ def test_the_safe_shutdown_of_a_dead_link_sends_output_off_without_waiting_for_i
     assert bytes(received).splitlines() == [b"OUTP 0"]
     assert not out.output_off_confirmed and out.output_off_sent_t_s is not None and out.t_s >= out.output_off_sent_t_s
     assert out.current_after_A is None and any("not confirmed" in p for p in out.problems)
+
+
+class StepClock:
+    """A 1x clock that moves only when slept on, standing in for the engine in :meth:`RunEngine._wait_until`:
+    records the times it watched the instruments."""
+
+    speed = 1.0
+
+    def __init__(self) -> None:
+        self.t = 0.0
+        self.heartbeats: list[float] = []
+        self.stats = RunStats()
+        self._stop_reason = None
+        self.clock = self
+
+    def now(self) -> float:
+        return self.t
+
+    def sleep(self, dt_s: float) -> None:
+        self.t += max(0.0, dt_s)
+
+    def _heartbeat(self) -> None:
+        self.heartbeats.append(self.t)
+
+
+@pytest.mark.parametrize("wait_s", [0.05, 0.2, 0.21, 0.29, 0.5, 0.79, 0.99, 3.3])
+def test_between_samples_the_instruments_are_watched_at_most_a_heartbeat_apart(wait_s: float) -> None:
+    """At 1x a dead link is noticed at the next exchange: no stretch without one is longer than HEARTBEAT_S, and
+    there are no more watches than that needs."""
+    fake = StepClock()
+    RunEngine._wait_until(fake, wait_s)  # type: ignore[arg-type]
+    times = [0.0, *fake.heartbeats, fake.t]
+    assert fake.t == pytest.approx(wait_s)
+    assert max(np.diff(times)) <= HEARTBEAT_S + 1e-9
+    assert len(fake.heartbeats) == math.ceil(wait_s / HEARTBEAT_S - 1e-9) - 1
+
+
+class SilentServer:
+    """A loopback TCP server that accepts every connection and never answers (a hung instrument); counts them."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(8)
+        self.sock.settimeout(0.05)
+        self.port = int(self.sock.getsockname()[1])
+        self.connections: list[socket.socket] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._accept, daemon=True)
+        self._thread.start()
+
+    def _accept(self) -> None:
+        while not self._stop.is_set():
+            with contextlib.suppress(TimeoutError, OSError):
+                self.connections.append(self.sock.accept()[0])
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        for c in [*self.connections, self.sock]:
+            c.close()
+
+
+def test_after_a_dead_cycler_link_a_hung_chamber_is_asked_once(tmp_path: Path) -> None:
+    """The tester hung (cycler and chamber in one process): the safe shutdown sends output off and asks the chamber
+    for its safe set point once, without the chamber driver's retries (each a link timeout more)."""
+    cycler_side, chamber_side = SilentServer(), SilentServer()
+    try:
+        cycler = ScpiCycler.open(f"socket://127.0.0.1:{cycler_side.port}", timeout_s=0.1, retries=0)
+        chamber = WatlowF4T.open(f"modbus-tcp://127.0.0.1:{chamber_side.port}", timeout_s=0.1, retries=2)
+        try:
+            out = safe_shutdown(cycler, chamber, 25.0, clock=RealClock(), unreachable=(cycler,))
+        finally:
+            cycler.close()
+            chamber.close()
+        assert len(chamber_side.connections) == 1  # one attempt: a retry reconnects first
+        assert chamber.retries == 2  # the driver's setting is restored
+        assert out.chamber_set_point_degC is None and any("chamber to 25 degC" in p for p in out.problems)
+    finally:
+        cycler_side.close()
+        chamber_side.close()
+
+
+def test_a_call_to_a_hung_instrument_ends_within_its_budget() -> None:
+    """A hung instrument at 1x (link timeout 0.2 s, budget 0.3 s): the first attempt times out, the retry gets what
+    is left of the budget as its timeout, so the run aborts at the budget, not a whole link timeout after it."""
+    server = SilentServer()
+    try:
+        cycler = ScpiCycler.open(f"socket://127.0.0.1:{server.port}", timeout_s=0.2, retries=0)
+        calls = InstrumentCalls(retries=3, backoff_s=0.5, clock=RealClock(), stats=RunStats(), budget_s=0.3)
+        w0 = time.perf_counter()
+        with pytest.raises(Abort, match="measure failed after 2 attempts") as info:
+            calls.call("measure", cycler.measure)
+        elapsed = time.perf_counter() - w0
+        cycler.close()
+        assert info.value.kind == "communication" and info.value.device is cycler
+        assert cycler.adapter.timeout_s == 0.2  # restored
+        assert len(server.connections) == 2  # the retry reconnected first
+        assert elapsed <= 0.3 + 0.05  # a whole second timeout would end at 0.42 s
+    finally:
+        server.close()
 
 
 # -- catalog --------------------------------------------------------------------------------------------------
