@@ -3,7 +3,9 @@
 ``battlab.simulate`` takes a :class:`~battlab.Cell`; a fit changes θ̄ every iteration, and a new cell costs a
 model build (≈0.5 s) although the compiled stepper takes θ̄ as an input. :class:`ForwardModel` keeps the stepper
 of one base cell and passes θ̄ straight to it (same solver, same limits, same sign conversion as
-``battlab.simulate``; a test checks they agree). Without a C compiler it falls back to ``battlab.simulate``.
+``battlab.simulate``; a test checks they agree). Its steps end at every sample (``Settings(adaptive=False)``):
+error-controlled steps would move with θ̄ and make the cost a step function at the level of the tolerance.
+Without a C compiler it falls back to ``battlab.simulate``.
 """
 
 from __future__ import annotations
