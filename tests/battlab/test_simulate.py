@@ -282,3 +282,23 @@ def test_more_current_than_the_cell_can_carry_is_a_voltage_limit(nca18650: Cell)
         res = battlab.simulate(nca18650, lib[721], soc0=soc0, ambient=263.15, v_limits=(2.0, 4.5))
         assert res.ended_by is not None and res.ended_by.startswith("V < 2 (no solution at"), res.ended_by
         assert res.t.size == peak_at and np.isfinite(res.voltage).all()
+
+
+def test_a_right_limit_at_its_round_off_floor_is_converged(shared_data: Path) -> None:
+    """The true cell replaying the logged 10 degC HWFET: at t = 286 s the regen current rises from 0.46 to 1.92 A
+    and Newton's residual for the right limit stops at its round-off floor (about 1e-9 in units of 1C: the solid
+    current rows round to σ/Δx · φ_s · 1e-16 at σ⁺ = 500 S/m), just above its absolute tolerance of 1e-9. That is
+    a converged solve; it was taken for a failure and the prediction ended there as more than the cell can take."""
+    from battlab.identify.experiments import experiments_from_data
+    from battlab.io.data import load_data
+
+    truth = Cell.load("nca18650-true")
+    data = load_data(shared_data / "panasonic-18650pf" / "10degC_HWFET.mat")
+    (e,) = experiments_from_data(data, truth, ambient=283.15)
+    n = 300
+    prof = Profile(e.profile.t[:n], e.profile.current[:n])
+    assert prof.current[285] == pytest.approx(0.457, abs=1e-3) and prof.current[286] == pytest.approx(1.925, abs=1e-3)
+    res = battlab.simulate(truth, prof, soc0=e.soc0, ambient=283.15, T0=e.T0, v_limits=(2.35, 4.35))
+    assert res.ended_by is None and res.t.size == n
+    assert 0.0 < res.voltage[286] - res.voltage[285] < 0.1  # more regen current: a rise of tens of mV
+    assert np.sqrt(np.mean((res.voltage - e.voltage[:n]) ** 2)) < 0.04
