@@ -143,8 +143,8 @@ static double norm_inf(const double *v, int n) {
 static int newton(const Problem *P, double *ynew, const double *xn, const double *xp, const double *u,
                   const double *th, double *lu, int *have_lu, double *R, double *yt, double *Rt, double *jnz,
                   double *c, double tol, int maxit, double dytol) {
-  int it, njac = 0, fresh_last = 0, i;
-  double prev = INFINITY, dy = INFINITY, r;
+  int it, njac = 0, fresh_last = 0, fresh_prev = 0, stale = 0, zero = u[0] == 0.0, i;
+  double prev = INFINITY, dy = INFINITY, dfull = INFINITY, r;
   call5(bl_res, ynew, xn, xp, u, th, R, 0);
   r = norm_inf(R, P->n);
   for (it = 0; it < maxit; ++it) {
@@ -163,17 +163,22 @@ static int newton(const Problem *P, double *ynew, const double *xn, const double
     if (r < tol && (dy < (fresh_last ? 1e-6 : dytol) * scale || r > 0.5 * prev)) return it;
     /* the update no longer moves the solution: the residual is at its round-off floor */
     if (dy < 1e-13 * scale && r < 1e3 * tol) return it;
+    /* or there above tol: a Newton step with a fresh Jacobian, below 1e-9 relative, no longer halves the
+       residual. Rows with large terms leave a floor above tol: the solid current of a well-conducting electrode,
+       sigma/dx * phi_s ~ 1e7 A/m^2 per volt at 4 V, rounds to ~1e-9 in units of 1C (sigma+ = 500 S/m) */
+    if (fresh_prev && dfull < 1e-9 * scale && r > 0.5 * prev && r < 1e3 * tol) return it;
     /* chord iterations on the last factorisation while they contract fast, else a fresh Jacobian */
-    if (!*have_lu || (it > 0 && r > 0.03 * prev && r >= tol)) {
+    if (!*have_lu || stale || (it > 0 && r > 0.03 * prev && r >= tol)) {
       if (njac >= 8) return -1;
       call5(bl_jac, ynew, xn, xp, u, th, jnz, 0);
       if (lu_factor(P, jnz, lu)) { *have_lu = 0; return -2; }
       *have_lu = 1;
       fresh = 1;
+      stale = 0;
       ++njac;
     }
     lu_solve(P, lu, R, c); /* R now holds the full step */
-    dy = norm_inf(R, P->n);
+    dy = dfull = norm_inf(R, P->n);
     /* backtracking on the residual norm with a fresh Jacobian (a chord step that does not contract is
        accepted and triggers a fresh Jacobian next time) */
     for (int ls = 0; ls < 8; ++ls) {
@@ -183,6 +188,18 @@ static int newton(const Problem *P, double *ynew, const double *xn, const double
       if (isfinite(rt) && (!fresh || rt < r || r < tol)) break;
       lam *= 0.5;
     }
+    if (zero && r >= tol && !(rt < r)) {
+      /* a zero-length solve (the start, a right limit) has no mass term to temper a bad step: a chord step that
+         raises the residual is not taken (a fresh Jacobian instead), and a Newton step that cannot lower a
+         residual above 1e3 tol even at 1/256 means Newton is lost (the caller continues in the current) */
+      if (fresh && r > 1e3 * tol) return -1;
+      if (!fresh) {
+        stale = 1;
+        dy = dfull = INFINITY;
+        call5(bl_res, ynew, xn, xp, u, th, R, 0);
+        continue;
+      }
+    }
     if (!isfinite(rt)) return -1;
     memcpy(ynew, yt, sizeof(double) * P->n);
     memcpy(R, Rt, sizeof(double) * P->n);
@@ -190,6 +207,7 @@ static int newton(const Problem *P, double *ynew, const double *xn, const double
     r = rt;
     dy *= lam;
     fresh_last = fresh && lam == 1.0;
+    fresh_prev = fresh;
   }
   return -1;
 }
@@ -234,6 +252,58 @@ static void output(const Problem *P, const double *y, const double *u, const dou
     }
     for (int j = 0; j < ns; ++j) dT2[j] = Sy[(size_t)P->iT2 * ns + j];
   }
+}
+
+/* The right limit at a current change: the algebraic state with the differential states of the left limit y and
+ * the current u0[2], into y0. Newton from y (if it fails on the chord matrix of an earlier solve, which belongs to
+ * another state and current, again with a fresh Jacobian); if that fails, continuation in the current from I_from,
+ * each solve from the last solution, the current step halved when Newton fails and doubled when it converges,
+ * down to 1e-4 of the jump. *beyond = 1 when the voltage on the way leaves [limits[0], limits[1]]: the cell cannot
+ * carry the new current within its window (a tester stops there), or when no solution was found and the left
+ * limit is beyond them (the voltage passed a limit during the step before); o: the outputs there. Returns the
+ * Newton iterations of the last solve (>= 0, y0 the solution), -1 (not reached: the voltage-current curve folds
+ * before the new current, or Newton failed) or -2 (a vanishing pivot of P0 where the continuation stopped). */
+static int right_limit(const Problem *P0, double *y0, const double *y, const double *xp, double *u0, double I_from,
+                       const double *th, double *lu0, int *have_lu0, double *R, double *yt, double *Rt, double *jnz,
+                       double *c, double tol, int maxit, const double *limits, double *o, double *vy, double *vth,
+                       int *beyond) {
+  int n = P0->n, it, solves = 0, singular = 0, chord = *have_lu0;
+  double I_to = u0[2], I_at = I_from, dI = 0.125 * (u0[2] - I_from), *ylast;
+  *beyond = 0;
+  memcpy(y0, y, sizeof(double) * n);
+  it = newton(P0, y0, y, xp, u0, th, lu0, have_lu0, R, yt, Rt, jnz, c, tol, maxit, 1e-11);
+  if (it < 0 && chord) { /* a stale chord matrix can throw the iterate far off (and onto a singular Jacobian) */
+    memcpy(y0, y, sizeof(double) * n);
+    *have_lu0 = 0;
+    it = newton(P0, y0, y, xp, u0, th, lu0, have_lu0, R, yt, Rt, jnz, c, tol, maxit, 1e-11);
+  }
+  if (it >= 0) return it;
+  singular = it == -2;
+  ylast = malloc(sizeof(double) * n);
+  memcpy(ylast, y, sizeof(double) * n);
+  while (I_at != I_to) {
+    if (fabs(dI) < 1e-4 * fabs(I_to - I_from) || ++solves > 100) { it = singular ? -2 : -1; break; }
+    u0[2] = fabs(I_to - I_at) <= fabs(dI) ? I_to : I_at + dI;
+    memcpy(y0, ylast, sizeof(double) * n);
+    it = newton(P0, y0, y, xp, u0, th, lu0, have_lu0, R, yt, Rt, jnz, c, tol, maxit, 1e-11);
+    if (it < 0) { /* smaller steps (a far-off iterate can meet a singular Jacobian, too) */
+      singular = it == -2;
+      dI *= 0.5;
+      continue;
+    }
+    I_at = u0[2];
+    memcpy(ylast, y0, sizeof(double) * n);
+    output(P0, y0, u0, th, 0, 0, 0, o, 0, 0, vy, vth);
+    if (!(o[0] >= limits[0] && o[0] <= limits[1])) { *beyond = 1; break; }
+    dI *= 2.0;
+  }
+  if (it < 0) { /* the left limit itself beyond the limits: the voltage passed one during the step before */
+    u0[2] = I_from;
+    output(P0, y, u0, th, 0, 0, 0, o, 0, 0, vy, vth);
+    *beyond = !(o[0] >= limits[0] && o[0] <= limits[1]);
+  }
+  free(ylast);
+  return it;
 }
 
 /* Interpolated state at time tau (<= 0) from a step's end: quadratic through the starts of this step (tau = -h)
@@ -352,23 +422,12 @@ int bl_run(const Problem *P, const Problem *P0, int nsteps, const double *h, con
       } else {
         /* right limit: algebraic re-solve with the new current (a zero-length step) */
         double u0[4] = {0.0, 0.0, I_samp[m], Tamb[k]};
-        memcpy(y0, y, sizeof(double) * n);
-        it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit, 1e-11);
-        int beyond = 0;
-        if (it == -1) {
-          /* a large current step: continuation in the current from the left limit; a voltage beyond the limits
-             on the way means the cell cannot carry the new current (a tester stops there: a limit, not a
-             solver failure) */
-          memcpy(y0, y, sizeof(double) * n);
-          for (int q = 1; q <= 8; ++q) {
-            u0[2] = I[k] + (I_samp[m] - I[k]) * q / 8.0;
-            it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit, 1e-11);
-            if (it < 0) break;
-            output(P0, y0, u0, th, sel, 0, Sy0, o, 0, 0, vy, vth);
-            if (!(o[0] >= limits[0] && o[0] <= limits[1])) { beyond = 1; break; }
-          }
-        }
-        if (beyond) { *code = 1; ret = k + 1; stop = 1; break; }
+        int beyond;
+        it = right_limit(P0, y0, y, xp, u0, I[k], th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit, limits, o, vy,
+                         vth, &beyond);
+        /* a voltage beyond the limits on the way: the cell cannot carry the new current (a limit, not a solver
+           failure; reported as one with the failed right limits, the sample not written) */
+        if (beyond) { *code = -4; ret = k + 1; stop = 1; break; }
         if (it >= 0 && ns && sens(P0, y0, y, xp, u0, th, sel, ns, S, Sp, Sy0, lu0, jnz, jth, c)) it = -2;
         if (it == -2) { /* a vanishing pivot: undo the step, so the caller can re-analyse P0 and redo it */
           memcpy(y, yprev, sizeof(double) * n);
@@ -549,20 +608,10 @@ int bl_adapt(const Problem *P, const Problem *P0, int nseg, const double *seg_h,
           output(P, y, u, th, sel, ns, Sy, o, outdV + (size_t)m * ns, outdT2 + (size_t)m * ns, vy, vth);
         } else {
           double u0[4] = {0.0, 0.0, I_samp[m], Tamb};
-          int beyond = 0;
-          memcpy(y0, y, sizeof(double) * n);
-          it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit, 1e-11);
-          if (it == -1) {
-            memcpy(y0, y, sizeof(double) * n);
-            for (int q = 1; q <= 8; ++q) {
-              u0[2] = seg_I[k] + (I_samp[m] - seg_I[k]) * q / 8.0;
-              it = newton(P0, y0, y, xp, u0, th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit, 1e-11);
-              if (it < 0) break;
-              output(P0, y0, u0, th, sel, 0, Sy0, o, 0, 0, vy, vth);
-              if (!(o[0] >= limits[0] && o[0] <= limits[1])) { beyond = 1; break; }
-            }
-          }
-          if (beyond) { *code = 1; stop = 1; break; }
+          int beyond;
+          it = right_limit(P0, y0, y, xp, u0, seg_I[k], th, lu0, &have_lu0, R, yt, Rt, jnz, c, tol, maxit, limits, o,
+                           vy, vth, &beyond);
+          if (beyond) { *code = -4; stop = 1; break; }
           if (it >= 0 && ns && sens(P0, y0, y, xp, u0, th, sel, ns, S, Sp, Sy0, lu0, jnz, jth, c)) it = -2;
           if (it == -2) { /* undo the step: the caller re-analyses P0 and calls again */
             memcpy(y, ysave, sizeof(double) * n);
