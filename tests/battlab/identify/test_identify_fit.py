@@ -9,6 +9,7 @@ import battlab
 from battlab import parameters as P
 from battlab.identify import fit as F
 from battlab.identify.forward import ForwardModel, Output
+from battlab.identify.gauss_newton import bounded_gauss_newton
 from battlab.identify.virtual import noise_free, synthesize
 from battlab.model.solver import Settings
 from protocols.library import Library
@@ -107,7 +108,7 @@ def test_bounded_gauss_newton_step_solves_an_ill_conditioned_problem() -> None:
     x0, jac, r0 = ill_conditioned_problem()
     cost0, best = 0.5 * float(r0 @ r0), bounded_minimum(x0, jac, r0)
     assert cost0 - best > 0.2  # far from converged: the step must predict that
-    gn = F._bounded_gauss_newton(x0, jac, r0)
+    gn = bounded_gauss_newton(x0, jac, r0)
     assert gn.failed is None
     assert gn.predicted == pytest.approx(cost0 - best, rel=1e-6)
     rr = r0 + jac @ gn.step  # the prediction is the linear model's decrease at the step, inside the box
