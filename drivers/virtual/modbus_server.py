@@ -27,6 +27,8 @@ from drivers.virtual.faults import Fault, FaultInjector
 from drivers.virtual.instruments import ExecutionError
 from drivers.virtual.served import ServedLab
 
+#: the longest wait for one Modbus server to shut down [s]
+SHUTDOWN_TIMEOUT_S = 1.0
 log = logging.getLogger("drivers.virtual")
 
 
@@ -214,7 +216,10 @@ class F4TModbusServer:
         self._ready.set()
         await self._stop.wait()
         for server in self._servers:
-            await server.shutdown()
+            # pymodbus's shutdown waits for its client connections: bounded, so that Ctrl-C of a served lab
+            # cannot hang on a client that went away mid-exchange
+            with contextlib.suppress(TimeoutError, asyncio.TimeoutError):
+                await asyncio.wait_for(server.shutdown(), SHUTDOWN_TIMEOUT_S)
 
     def stop(self, timeout_s: float = 5.0) -> None:
         if self._loop is not None and self._stop is not None and not self._loop.is_closed():
