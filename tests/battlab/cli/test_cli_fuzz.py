@@ -345,7 +345,9 @@ def test_validate_data_files(shared: dict[str, Path], content: bytes, suffix: st
     with dirs() as (inp, out):
         path = inp / f"data{suffix}"
         path.write_bytes(content)
-        run_cli(["validate", str(path), "--cell", "nca18650", "--ambient", "25"], out, [path.name])
+        # -o inside the case's output directory: a valid file must not leave validation/ in the working directory
+        args = ["validate", str(path), "--cell", "nca18650", "--ambient", "25", "-o", str(out / "validation")]
+        run_cli(args, out, [path.name])
 
 
 @FUZZ
