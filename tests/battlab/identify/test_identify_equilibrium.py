@@ -11,26 +11,13 @@ import battlab
 from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
 from battlab.io import load_data
 from protocols.errors import InputError
-from protocols.profile import Profile
+from tests.battlab.conftest import _c20_cycle
 
 
 @pytest.fixture(scope="module")
 def c20_cycle() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A simulated C/20 discharge, 1 h rest, C/20 charge on nca18650, sampled every 60 s."""
-    cell = battlab.Cell.load("nca18650")
-    i = 2.7 / 20
-    seg = [(-i, 21 * 3600.0), (0.0, 3600.0), (i, 21 * 3600.0)]
-    ts, cs, vs, t0 = [], [], [], 0.0
-    soc = 1.0
-    for cur, dur in seg:
-        prof = Profile.constant(cur, dur, 60.0)
-        res = battlab.simulate(cell, prof, soc0=soc, isothermal=True, v_limits=(2.5, 4.2))
-        ts.append(res.t + t0)
-        cs.append(res.current)
-        vs.append(res.voltage)
-        t0 += res.t[-1] + 60.0
-        soc = float(np.clip(soc + cur * res.t[-1] / 3600 / cell.capacity(), 0, 1))
-    return np.concatenate(ts), np.concatenate(cs), np.concatenate(vs)
+    return _c20_cycle()
 
 
 def test_synthetic_c20_recovers_table4(c20_cycle) -> None:
