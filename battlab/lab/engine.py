@@ -87,6 +87,8 @@ class EngineConfig:
     watchdog_s: float = 60.0
     safe_set_point_degC: float | None = 25.0
     soc_from_voltage: Callable[[float], float] | None = None
+    #: the plan's SOC and voltage window checked at the rest voltage [V] (an InputError: the reason to abort)
+    window_check: Callable[[float], None] | None = None
 
 
 class RunEngine:

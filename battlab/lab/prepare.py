@@ -2,7 +2,8 @@
 
 Identities (compared with the recorded ones on a resume), the instrument reset, the instrument's own protections
 programmed from the envelope (voltage and current limits, over-temperature trip, I/O watchdog), the cell's rest
-voltage within the envelope, the chamber free of alarms, at its set point and stable; then the run's origin on
+voltage within the envelope (and the plan's SOC and voltage window from it, when the plan starts from rest:
+:mod:`battlab.lab.window`), the chamber free of alarms, at its set point and stable; then the run's origin on
 the instrument clock (re-anchored when the instrument's clock restarted during a resume).
 """
 
@@ -87,6 +88,11 @@ def prepare_bench(
     if bad is not None:
         raise Abort("preflight", f"cell at rest: {bad.message} (is the cell connected?)")
     rest_voltage = first.v
+    if getattr(config, "window_check", None) is not None:
+        try:  # the plan's start state is the cell at rest: its window is checked before any output is on
+            config.window_check(rest_voltage)
+        except InputError as exc:
+            raise Abort("preflight", str(exc)) from None
     alarms = calls.call("chamber alarms", chamber.alarms)
     if alarms:
         raise Abort("preflight", f"chamber alarm(s) before the run: {alarms}")

@@ -80,6 +80,32 @@ def _prepare(plan: Plan, settings: RunSettings) -> tuple[Any, InstrumentLimits, 
     return cell, limits, envelope
 
 
+def _window_check(plan: Plan, cell: Any, settings: RunSettings) -> Callable[[float], None] | None:
+    """The plan's SOC and voltage window on ``cell`` (:mod:`battlab.lab.window`), checked now when the plan's start
+    state is known (it charges the cell before its first profile; ``--soc0``; the in-process virtual cell's SOC);
+    else returned as a check of the rest voltage that the preflight measures before any output is switched on."""
+    from battlab.lab.window import check_window, needs_start_soc
+
+    where = plan.source or plan.protocol.name
+    ambient = plan.options.ambient_degC + 273.15
+    if not needs_start_soc(plan.protocol, cell):
+        check_window(plan.protocol, cell, ambient_K=ambient).raise_if_bad(where)
+        return None
+    if settings.soc0 is not None or settings.virtual:
+        soc = 0.5 if settings.soc0 is None else settings.soc0
+        how = f"start SOC {soc:g} ({'--soc0' if settings.soc0 is not None else 'the virtual cell'})"
+        check_window(plan.protocol, cell, start_soc=soc, start=how, ambient_K=ambient).raise_if_bad(where)
+        return None
+
+    def at_rest(voltage: float) -> None:
+        lo, hi = float(cell.ocv(0.0)), float(cell.ocv(1.0))
+        soc = cell.soc_from_voltage(min(max(voltage, lo), hi))
+        how = f"SOC {soc:.3f} (the rest voltage {voltage:.4f} V)"
+        check_window(plan.protocol, cell, start_soc=soc, start=how, ambient_K=ambient).raise_if_bad(where)
+
+    return at_rest
+
+
 @dataclass
 class _Connected:
     """A run's lock held, its plan checked, its instruments connected and answering."""
@@ -88,19 +114,23 @@ class _Connected:
     cell: Any
     limits: InstrumentLimits
     envelope: Any
+    #: the plan's window check at the measured rest voltage (None: checked before connecting, or a resume)
+    window_check: Callable[[float], None] | None = None
 
 
 @contextmanager
-def _connected(plan: Plan, settings: RunSettings, log_path: Path) -> Iterator[_Connected]:
+def _connected(plan: Plan, settings: RunSettings, log_path: Path, *, new_run: bool = False) -> Iterator[_Connected]:
     """The run lock on ``log_path``, then the bench connected (:func:`connect_bench`); both released on exit. Any
-    failure here is before the run: the caller has recorded nothing yet."""
+    failure here is before the run: the caller has recorded nothing yet. A ``new_run`` has its plan's window
+    checked (:func:`_window_check`) first."""
     cell, limits, envelope = _prepare(plan, settings)
+    window_check = _window_check(plan, cell, settings) if new_run else None
     lock = RunLock(log_path)
     lock.acquire()
     try:
         bench = connect_bench(settings, cell, limits, plan.options.ambient_degC)
         try:
-            yield _Connected(bench, cell, limits, envelope)
+            yield _Connected(bench, cell, limits, envelope, window_check)
         finally:
             bench.close()
     finally:
@@ -130,6 +160,7 @@ def _execute(
         watchdog_s=watchdog,
         safe_set_point_degC=limits.chamber.safe_set_point,
         soc_from_voltage=connected.cell.soc_from_voltage,
+        window_check=connected.window_check,
         **config_overrides,
     )
     sink = LogSink(open_writer, plan.options.flush_s)
@@ -167,7 +198,7 @@ def start_run(
         raise InputError(f"{log_path.parent}: no such directory for the run log")
     catalog = catalog or Catalog()
     # the plan checked and the instruments answering before the run is catalogued
-    with _connected(plan, settings, log_path) as connected:
+    with _connected(plan, settings, log_path, new_run=True) as connected:
         return _start(plan, plan_path, settings, log_path, catalog, connected, display, extra_subscribers)
 
 
