@@ -316,6 +316,19 @@ def design(
     _note(rep.note)
     console = make_console()
     _print_design(console, rep.designs, rep.meta, rep.settings, rep.source, rep.n_candidates, rep.solve_seconds)
+    if rep.window_excluded:
+        ids = ", ".join(str(p) for p in list(rep.window_excluded)[:10]) + (
+            " …" if len(rep.window_excluded) > 10 else ""
+        )
+        console.print(
+            f"{len(rep.window_excluded)} profiles leave the plan's SOC or voltage window on the design cell "
+            f"(excluded: {ids}; reasons in the summary's 'excluded')"
+        )
+    if rep.window is not None:
+        console.print(
+            f"plan checked on cell {rep.window.cell} from {rep.window.start}: its {len(rep.window.profiles)} profiles "
+            "keep the SOC and voltage window"
+        )
     files = rep.files
     console.print(f"wrote {files.plan}, {', '.join(str(p) for p in files.groups)}, {files.summary}, {rep.figure}")
 

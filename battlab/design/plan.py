@@ -59,11 +59,25 @@ def _library_ref(store: SensitivityStore, profiles: Sequence[Profile], plan_dir:
         return str(lib_path), lib
 
 
-def grouped_protocol(name: str, groups: Sequence[tuple[int, list[Profile]]], description: str) -> Protocol:
+def ocv_table(cell: Any, n: int = 21) -> list[tuple[float, float]]:
+    """(SOC, OCV [V]) of ``cell`` at ``n`` SOCs from 0 to 1: the voltages the plan's CCCV steps hold to bring the
+    cell to each profile's start SOC (the paper's Table 5 covers 0.2–0.8 only and is another cell's)."""
+    socs = np.linspace(0.0, 1.0, n)
+    return [(float(s), float(v)) for s, v in zip(socs, np.asarray(cell.ocv(socs), float), strict=True)]
+
+
+def grouped_protocol(
+    name: str,
+    groups: Sequence[tuple[int, list[Profile]]],
+    description: str,
+    ocv_table: Sequence[tuple[float, float]] | None = None,
+) -> Protocol:
     """Concatenate the groups' profiles in order and label each profile step 'group k: profile ID' (the labels
-    :func:`battlab.io.plan.design_groups` falls back on)."""
+    :func:`battlab.io.plan.design_groups` falls back on). ``ocv_table``: (SOC, OCV) pairs the CCCV steps to each
+    profile's start SOC hold to (default: the paper's Table 5)."""
     flat = [p for _, ps in groups for p in ps]
-    proto = concatenate(flat, name=name).protocol
+    kw = {} if ocv_table is None else {"ocv_table": ocv_table}
+    proto = concatenate(flat, name=name, **kw).protocol
     group_of = [g for g, ps in groups for _ in ps]
     steps, k = [], 0
     for st in proto.steps:
@@ -108,6 +122,7 @@ def write_plan(
     criterion: str,
     solve_seconds: float,
     extra: dict[str, Any] | None = None,
+    ocv_table: Sequence[tuple[float, float]] | None = None,
 ) -> PlanFiles:
     """Write ``out`` (the whole plan), one TOML per group and the design's summary ``<out>.summary.json``, also as
     ``summary.json`` (the name scripts read; the next command writing one in this directory replaces that copy)."""
@@ -125,13 +140,13 @@ def write_plan(
         + "; ".join(f"group {d.index} ({', '.join(d.new_parameters)}): profiles {d.selected}" for d in designs)
         + f" (design metadata in {sidecar_path(out).name})"
     )
-    whole = grouped_protocol(f"OED plan ({criterion}-optimal, {cell})", per_group, desc)
+    whole = grouped_protocol(f"OED plan ({criterion}-optimal, {cell})", per_group, desc, ocv_table)
     _write(whole, out, ref)
     group_paths = []
     for d, (g, ps) in zip(designs, per_group, strict=True):
         gp = out.with_name(f"{out.stem}.group{g}.toml")
         name = f"OED group {g} ({criterion}-optimal, {cell})"
-        _write(grouped_protocol(name, [(g, ps)], f"group {g}: {d.parameters}"), gp, ref)
+        _write(grouped_protocol(name, [(g, ps)], f"group {g}: {d.parameters}", ocv_table), gp, ref)
         group_paths.append(gp)
     _check_round_trip(out, all_profiles, lib)
     data = summary(
@@ -152,6 +167,15 @@ def write_plan(
     sp.write_text(text)
     out.with_name("summary.json").write_text(text)  # the name scripts read (docs/file-formats.md)
     return PlanFiles(out, tuple(group_paths), sp, sp)
+
+
+def add_to_summary(files: PlanFiles, **entries: Any) -> None:
+    """Add ``entries`` to the design's summary (``<plan>.summary.json`` and its ``summary.json`` copy)."""
+    data = json.loads(files.summary.read_text())
+    data.update(_jsonable(entries))
+    text = json.dumps(data, indent=1)
+    files.summary.write_text(text)
+    files.plan.with_name("summary.json").write_text(text)
 
 
 def _check_round_trip(path: Path, profiles: Sequence[Profile], library: Any = None) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -199,6 +199,53 @@ def perturbation_plot(store: Any, info: Any, grp: Any, ranking: Any, profile_id:
     return figs.perturbation(runs, path, f"profile {profile_id} {name} (start SOC {prof.soc0})")
 
 
+def window_screen(store: Any, info: Any, cell: Cell, limits: Any = None) -> Any:
+    """The candidates whose run on the design cell keeps the plan's window (:mod:`battlab.lab.window`): the
+    coulomb-counted SOC within [SOC_MARGIN, 1 − SOC_MARGIN] from the profile's start SOC (the cell's capacity) and
+    the voltage the sweep simulated at least VOLTAGE_MARGIN_V inside ``limits`` (default: the plan's
+    :class:`protocols.protocol.SafetyLimits`). The others move to ``info.excluded`` with the reason."""
+    from battlab.design.sweep.store import GROUP, group_name
+    from battlab.lab.window import SOC_MARGIN, VOLTAGE_MARGIN_V
+    from protocols.protocol import SafetyLimits
+
+    lim = limits or SafetyLimits()
+    lo, hi = lim.voltage_min + VOLTAGE_MARGIN_V, lim.voltage_max - VOLTAGE_MARGIN_V
+    cap = cell.capacity()
+    keep, excluded = [], dict(info.excluded)
+    for k, pid in enumerate(info.ids):
+        prof = store.profile(pid)
+        soc = prof.soc(cap, float(prof.soc0))
+        v = store.f[GROUP][group_name(pid)]["voltage"][()]
+        if soc.min() < SOC_MARGIN or soc.max() > 1 - SOC_MARGIN:
+            excluded[pid] = (
+                f"window: from SOC {prof.soc0:g} it passes SOC {soc.min():.3f}–{soc.max():.3f}, outside "
+                f"[{SOC_MARGIN:g}, {1 - SOC_MARGIN:g}]"
+            )
+        elif v.min() < lo or v.max() > hi:
+            excluded[pid] = (
+                f"window: its voltage spans {v.min():.3f}–{v.max():.3f} V, within {VOLTAGE_MARGIN_V:g} V of the "
+                f"plan's limits [{lim.voltage_min:g}, {lim.voltage_max:g}] V"
+            )
+        else:
+            keep.append(k)
+    if not keep:
+        raise InputError(f"{store.path}: no profile keeps the plan's SOC and voltage window ({len(excluded)} excluded)")
+    return _subset(info, keep, excluded)
+
+
+def _subset(info: Any, keep: Sequence[int], excluded: Mapping[Any, str]) -> Any:
+    from battlab.design.information import Information
+
+    return Information(
+        tuple(info.ids[k] for k in keep),
+        info.names,
+        info.R[list(keep)],
+        info.q[list(keep)],
+        tuple(info.meta[k] for k in keep) if info.meta else (),
+        dict(excluded),
+    )
+
+
 @dataclass(frozen=True)
 class DesignReport:
     """The designs per group and what was written."""
@@ -212,6 +259,14 @@ class DesignReport:
     files: Any  # plan.PlanFiles
     figure: Path
     note: str | None = None
+    #: the written plan's window check on the design cell (battlab.lab.window.WindowReport)
+    window: Any = None
+    #: candidates left out because they leave the plan's SOC or voltage window: id -> reason
+    window_excluded: Mapping[Any, str] = field(default_factory=dict)
+
+
+#: designs tried when the written plan fails its window check (each retry leaves out the profiles that failed)
+WINDOW_ATTEMPTS = 3
 
 
 def design(
@@ -266,25 +321,51 @@ def design(
             solver=solver,
             on_singular=singular,
         )
-        designs = gd.design_groups(info, grp, settings, conv)
-        solve_seconds = time.perf_counter() - t0
-        meta_by_id = {m["id"]: m for m in info.meta}
-        files = planmod.write_plan(
-            designs,
-            store,
-            output,
-            criterion=settings.criterion.value,
-            solve_seconds=solve_seconds,
-            extra={
-                "groups_source": source,
-                "M": M,
-                "budget": budget,
-                "cost": cost,
-                "cumulative": cumulative,
-                "n_candidates": len(info),
-                "excluded": {str(k_): v for k_, v in info.excluded.items()},
-                "selected_profiles": {str(pid): meta_by_id[pid] for d in designs for pid in d.selected},
-            },
-        )
+        cell = store.cell()
+        before = set(info.excluded)
+        info = window_screen(store, info, cell)
+        for attempt in range(1, WINDOW_ATTEMPTS + 1):
+            designs = gd.design_groups(info, grp, settings, conv)
+            solve_seconds = time.perf_counter() - t0
+            meta_by_id = {m["id"]: m for m in info.meta}
+            files = planmod.write_plan(
+                designs,
+                store,
+                output,
+                criterion=settings.criterion.value,
+                solve_seconds=solve_seconds,
+                ocv_table=planmod.ocv_table(cell),
+                extra={
+                    "groups_source": source,
+                    "M": M,
+                    "budget": budget,
+                    "cost": cost,
+                    "cumulative": cumulative,
+                    "n_candidates": len(info),
+                    "excluded": {str(k_): v for k_, v in info.excluded.items()},
+                    "selected_profiles": {str(pid): meta_by_id[pid] for d in designs for pid in d.selected},
+                },
+            )
+            window = _check_plan_window(files.plan, cell)
+            failed = {p.profile_id: f"window: {p.problem}" for p in window.profiles if p.problem}
+            if not failed:
+                break
+            if attempt == WINDOW_ATTEMPTS:
+                window.raise_if_bad(str(files.plan))
+            keep = [k for k, pid in enumerate(info.ids) if pid not in failed]
+            info = _subset(info, keep, {**info.excluded, **failed})
+        planmod.add_to_summary(files, window=window.to_dict())
         fig = figs.design_weights(designs, Path(output).with_suffix(".weights.png"))
-    return DesignReport(designs, meta_by_id, settings, source, len(info), solve_seconds, files, fig, note)
+    window_excluded = {k_: v for k_, v in info.excluded.items() if k_ not in before}
+    return DesignReport(
+        designs, meta_by_id, settings, source, len(info), solve_seconds, files, fig, note, window, window_excluded
+    )
+
+
+def _check_plan_window(plan: Path, cell: Cell) -> Any:
+    """The written plan's window on the design cell, from its first step (a full charge)."""
+    from battlab.io.plan import Plan
+    from battlab.lab.window import check_window
+
+    loaded = Plan.load(plan)
+    return check_window(loaded.protocol, cell, ambient_K=loaded.options.ambient_degC + 273.15)

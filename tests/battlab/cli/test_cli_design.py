@@ -187,3 +187,29 @@ def test_plan_is_self_contained_when_the_library_file_is_gone(workdir: Path, tmp
     proto = Protocol.load(plan)
     selected = json.loads((tmp_path / "plan.summary.json").read_text())["groups"][0]["selected"]
     assert [s.profile.id for s in proto.steps if isinstance(s, ProfileStep)] == selected
+
+
+def test_design_leaves_out_profiles_that_leave_the_window_and_writes_a_plan_that_passes_it(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    """Library profile 304 (1 Ah net discharge from SOC 0.4, to SOC 0.03) passes the sweep's screen on nca18650
+    (2.65 V at its end) but aborts a run on the virtual truth: the design leaves it out and checks the plan."""
+    import battlab
+    from battlab.io.plan import Plan
+    from battlab.lab.window import check_window
+
+    d = tmp_path_factory.mktemp("window")
+    Library.build().save(d / "library.h5")
+    args = ["sensitivity", str(d / "library.h5"), "--cell", "nca18650", "-o", str(d / "sens.h5")]
+    r = CliRunner().invoke(main, [*args, "--ids", "28,136,304", "--workers", "1", "--no-conventional", "--no-progress"])
+    assert r.exit_code == 0, r.output
+    assert json.loads((d / "sens.summary.json").read_text())["ok"] == 3  # 304 passes the sweep's screen
+    plan = d / "plan.toml"
+    r = CliRunner().invoke(main, ["design", str(d / "sens.h5"), "-o", str(plan), "-M", "1", "-k", "2"])
+    assert r.exit_code == 0, r.output
+    assert "1 profiles leave the plan's SOC or voltage window" in r.output, r.output
+    summary = json.loads(plan.with_name("plan.summary.json").read_text())
+    assert summary["excluded"]["304"].startswith("window: from SOC 0.4 it passes SOC 0.030"), summary["excluded"]
+    assert all(304 not in g["selected"] for g in summary["groups"])
+    assert summary["window"]["ok"] and len(summary["window"]["profiles"]) == 2
+    assert check_window(Plan.load(plan).protocol, battlab.Cell.load("nca18650")).ok
