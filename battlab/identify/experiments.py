@@ -5,7 +5,9 @@
 * Resampling to ``dt`` (default 1 s, the sampling of the Fisher information): the current is averaged over each
   interval [t_k, t_k + dt) (charge-conserving, zero-order hold), the voltage is interpolated at t_k.
 * Start SOC: ``meta["soc0"]`` if logged; else from the first sample's voltage when the cell rests there
-  (rest voltage ↔ OCV of the cell), else an error. Later segments add the charge passed
+  (rest voltage ↔ OCV of the cell); else, in a log with steps (``Step Count / 1``, as the run logs have), from the
+  first step that sets the state (:func:`logged_start`): the data then start after it; else an error. Later
+  segments add the charge passed
   (``Net Capacity / Ah`` if logged, else ∫I dt) divided by the cell's capacity.
 * Ambient: the given ``ambient``, else the mean chamber temperature, else an error (never a guess); T0: the
   surface temperature at the segment's start.
@@ -24,7 +26,7 @@ import numpy as np
 from battlab.cell import Cell
 from battlab.identify.fit import Experiment, variance_of
 from battlab.io.checks import DataWarning, ranges
-from battlab.io.data import NET_CAPACITY, SURFACE, LoggedData
+from battlab.io.data import NET_CAPACITY, STEP, SURFACE, LoggedData
 from battlab.noise import NoiseModel
 from protocols.errors import InputError
 from protocols.profile import Profile
@@ -88,6 +90,40 @@ def check_cell(data: LoggedData, cell: Cell) -> None:
         )
 
 
+#: [V] a charge that ends this close to the cell's V_max, on a taper, leaves the cell full
+FULL_V_TOL = 0.015
+#: [s] a rest at least this long ends near equilibrium: its last voltage is the OCV
+LONG_REST_S = 1800.0
+
+
+def logged_start(data: LoggedData, cell: Cell, i_rest: float) -> tuple[int, float, str] | None:
+    """The first step of a log with steps (``Step Count / 1``) that sets the cell's state, as (the first sample
+    after it, the SOC there, what set it), or None: a charge that ends within :data:`FULL_V_TOL` of V_max with the
+    current tapered below C/20 (a CCCV or CV to V_max) leaves SOC 1; a rest (|I| ≤ ``i_rest`` [A]) of at least
+    :data:`LONG_REST_S` leaves the SOC whose OCV is its last voltage."""
+    steps = data.columns.get(STEP)
+    if steps is None or len(data) < 2:
+        return None
+    edges = np.flatnonzero(np.diff(steps) != 0) + 1
+    starts = np.concatenate([[0], edges])
+    ends = np.concatenate([edges, [len(data)]])
+    v_max, taper = float(cell["V_max"]), float(cell["Q_nom"]) / 20
+    lo, hi = float(cell.ocv(0.0)), float(cell.ocv(1.0))
+    for a, b in zip(starts[:-1], ends[:-1], strict=True):  # a step with data after it
+        i, v = data.current[a:b], data.voltage[a:b]
+        if i.max() > i_rest and abs(float(v[-1]) - v_max) <= FULL_V_TOL and 0 <= float(i[-1]) <= taper:
+            return int(b), 1.0, f"the charge to {v_max:g} V ending at {float(data.t[b - 1]):.0f} s (SOC 1)"
+        if np.all(np.abs(i) <= i_rest) and float(data.t[b - 1] - data.t[a]) >= LONG_REST_S:
+            soc = cell.soc_from_voltage(float(np.clip(v[-1], lo, hi)))
+            return int(b), soc, f"the rest ending at {float(data.t[b - 1]):.0f} s ({float(v[-1]):.4f} V, SOC {soc:.3f})"
+    return None
+
+
+def _from(data: LoggedData, k: int) -> LoggedData:
+    """``data`` from sample ``k`` on."""
+    return LoggedData(data.name, {c: v[k:] for c, v in data.columns.items()}, data.meta, data.source)
+
+
 def experiments_from_data(
     data: LoggedData,
     cell: Cell,
@@ -108,6 +144,15 @@ def experiments_from_data(
     cap = cell.capacity()
     i_rest = rest_current if rest_current is not None else 0.01 * float(cell["Q_nom"])
     start = soc0 if soc0 is not None else data.meta.get("soc0")
+    if start is None and abs(data.current[segs[0].start]) > i_rest:
+        found = logged_start(data, cell, i_rest)
+        if found is not None:
+            k, start, how = found
+            data = _from(data, k)
+            data.meta["start"] = f"SOC {start:.4g} after {how}"
+            segs = segments(data, max_gap)
+            if not segs:
+                raise InputError(f"{where}: no segment of at least 10 samples after {how}")
     if start is None:
         k = segs[0].start
         if abs(data.current[k]) > i_rest:
