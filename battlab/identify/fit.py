@@ -95,7 +95,8 @@ class Options:
     #: Threads that simulate the experiments of one evaluation in parallel (None: one per core; the compiled
     #: stepper releases the GIL). Results do not depend on it.
     workers: int | None = None
-    #: Simulations for Gauss–Newton steps after an optimiser stopped by ``max_nfev`` (see :func:`_polish`); 0: none.
+    #: Simulations for Gauss–Newton steps after an optimiser stopped by its iteration limit (see :func:`_polish`),
+    #: taken out of ``max_nfev`` (the optimiser keeps at least its first evaluation); 0: none.
     polish: int = 8
     #: Also converged (when the optimiser stopped on its iteration limit) if the linearised model predicts at
     #: most this cost decrease [½χ² units] inside the bounds: 0.005 means within 0.1 σ of the minimum. (Where
@@ -209,8 +210,12 @@ class _Problem:
         self.soc_span = float(soc_span)  # > 0: one start-SOC nuisance per experiment, soc0 ± soc_span
         self.n_nuis = len(self.exps) if self.soc_span > 0 else 0
         self._cache: dict[bytes, tuple[np.ndarray, np.ndarray, list[np.ndarray]]] = {}  # the last two points
-        self.n_sim = 0
+        self.n_sim = 0  # simulations of all experiments (every evaluation not found in the cache)
         self.pool = pool
+        #: the lowest-cost point evaluated so far and its cost (kept apart from the cache: never re-simulated)
+        self.best_x: np.ndarray | None = None
+        self.best_cost = float("inf")
+        self._best: tuple[np.ndarray, np.ndarray, list[np.ndarray]] | None = None
 
     def full(self, x: np.ndarray) -> np.ndarray:
         th = self.base.copy()
@@ -221,6 +226,8 @@ class _Problem:
         key = np.asarray(x, float).tobytes()
         if key in self._cache:
             return self._cache[key]
+        if self._best is not None and self.best_x is not None and key == self.best_x.tobytes():
+            return self._best
         x = np.asarray(x, float)
         th = self.full(x[: len(self.names)])
         idx = range(len(self.exps))
@@ -234,6 +241,10 @@ class _Problem:
         if len(self._cache) >= 2:
             self._cache.pop(next(iter(self._cache)))
         self._cache[key] = (np.concatenate(rs), np.vstack(js), preds)
+        r = self._cache[key][0]
+        cost = 0.5 * float(r @ r)
+        if cost < self.best_cost:
+            self.best_x, self.best_cost, self._best = x.copy(), cost, self._cache[key]
         return self._cache[key]
 
     def _one(self, i: int, th: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -373,6 +384,9 @@ def _fit(
     r0, _, preds0 = prob.evaluate(x0)
     cost0 = 0.5 * float(r0 @ r0)
     err = None
+    # the optimiser's first evaluation (at x0) is the one above, from the cache; the polish keeps up to ``polish`` of
+    # the evaluations: the optimiser's simulations and the polish's together stay within max_nfev
+    reserve = min(opt.polish, opt.max_nfev - 1)
     try:
         sol = least_squares(
             lambda x: prob.evaluate(x)[0],
@@ -384,24 +398,26 @@ def _fit(
             ftol=opt.ftol,
             xtol=opt.xtol,
             gtol=opt.gtol,
-            max_nfev=opt.max_nfev,
+            max_nfev=max(1, opt.max_nfev - reserve),
         )
-        x, status, nfev, njev, opt_norm = sol.x, sol.status, sol.nfev, sol.njev, sol.optimality
+        status, njev, opt_norm = sol.status, sol.njev, sol.optimality
     except (np.linalg.LinAlgError, ValueError) as exc:  # keep the best point seen
         err = f"optimiser failed: {exc}"
-        x, status, nfev, njev, opt_norm = x0, -1, prob.n_sim, 0, float("nan")
-    r, J, preds = prob.evaluate(x)
-    cost = 0.5 * float(r @ r)
-    if cost > cost0:  # never return a worse point than the start
-        x, (r, J, preds), cost = x0, prob.evaluate(x0), cost0
-    # polish only a fit stopped by its iteration limit (after a tolerance stop the valleys' curvature defeats it)
-    gn_step, n_polish = GaussNewtonStep(np.zeros_like(x), float("nan")), 0
+        status, njev, opt_norm = -1, 0, float("nan")
+    # the best point evaluated, never a worse one than the start (the optimiser's last point may be a rejected trial,
+    # and re-simulating it would cost an evaluation beyond the limit)
+    assert prob.best_x is not None
+    x = prob.best_x.copy()
+    # polish only a fit stopped by its iteration limit (after a tolerance stop the valleys' curvature defeats it),
+    # with the evaluations left
+    gn_step = GaussNewtonStep(np.zeros_like(x), float("nan"))
     if err is None:
-        x, gn_step, n_polish = _polish(prob, x, replace(opt, polish=opt.polish if status == 0 else 0))
+        left = max(0, opt.max_nfev - prob.n_sim)
+        x, gn_step, _ = _polish(prob, x, replace(opt, polish=min(opt.polish, left) if status == 0 else 0))
     dec = gn_step.predicted
     r, J, preds = prob.evaluate(x)
     cost = 0.5 * float(r @ r)
-    nfev += n_polish
+    nfev = prob.n_sim
     reasons = {
         -1: "failed",
         0: "maximum number of iterations reached",
