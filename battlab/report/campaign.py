@@ -268,7 +268,14 @@ def _parameters(summaries: Mapping[str, Any], fig_dir: Path, camp: Any) -> Secti
         KeyValues({"converged": f["converged"], "s²": f["s2"], "data hours": f.get("data_hours")}),
     ]
     if interior:
-        blocks.append(Paragraph(f"coverage: {covered} of {len(interior)} parameters whose truth is not on a bound"))
+        informative = sum(1 for r in fig_rows if r["ci_bar"] is not None and r["ci_bar"][1] - r["ci_bar"][0] < 0.5)
+        blocks.append(
+            Paragraph(
+                f"coverage: {covered} of {len(interior)} parameters whose truth is not on a bound; "
+                f"{informative} of {len(fig_rows)} intervals span less than half their parameter's range "
+                "(an interval as wide as the bounds covers the truth without saying anything)"
+            )
+        )
     return Section("Identified parameters", blocks)
 
 
