@@ -226,7 +226,7 @@ def sweep(camp: Campaign) -> Callable[[StageContext], StageOutput]:
             ids=ids,
             ambient_C=camp.ambient,
             conventional=not camp.config.quick,
-            workers=1,
+            workers=1 if len(ids) <= 50 else None,  # the whole library on every core; a subset in-process
             subscribers=[sub],
         )
         summary = sweep_summary(rep)
