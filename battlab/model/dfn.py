@@ -31,6 +31,7 @@ import numpy as np
 
 from battlab import parameters
 from battlab.cell import R_GAS, Cell, F
+from battlab.model.extensions import ModelOptions
 from battlab.model.mesh import Mesh
 
 C_SCALE = 1000.0  #: electrolyte concentration scale [mol m⁻³]: the unknown is c_e / C_SCALE
@@ -41,6 +42,7 @@ class Layout:
     """Where each variable sits in the unknown vector y = [x (differential) | z (algebraic)]."""
 
     mesh: Mesh
+    extra: tuple[tuple[str, int], ...] = ()  #: extensions' differential states (key, count), after T₂
 
     @property
     def n_sn(self) -> int:
@@ -52,8 +54,8 @@ class Layout:
 
     @property
     def nx(self) -> int:
-        """Differential states: θ⁻ shells, θ⁺ shells, c_e, T₁ − T_ref, T₂ − T_ref."""
-        return self.n_sn + self.n_sp + self.mesh.n_x + 2
+        """Differential states: θ⁻ shells, θ⁺ shells, c_e, T₁ − T_ref, T₂ − T_ref, the extensions' states."""
+        return self.n_sn + self.n_sp + self.mesh.n_x + 2 + sum(n for _, n in self.extra)
 
     @property
     def nz(self) -> int:
@@ -75,6 +77,7 @@ class Layout:
             ("ce", m.n_x),
             ("T1", 1),
             ("T2", 1),
+            *self.extra,
             ("phis_n", m.n_n),
             ("phis_p", m.n_p),
             ("phie", m.n_x),
@@ -103,7 +106,7 @@ class Context:
     thermal). Model convention: current positive = discharge."""
 
     y: ca.SX
-    I_dis: ca.SX  # cell current [A]
+    I_dis: ca.SX  # the current the cell carries [A] (the logged one unless an extension says otherwise)
     T_amb: ca.SX  # ambient temperature [K]
     p: dict[str, ca.SX]  # physical values of the identified parameters
     sl: dict[str, slice]
@@ -118,6 +121,7 @@ class Context:
     dx: np.ndarray  # cell widths [m]
     eps_x: ca.SX  # electrolyte volume fraction per x cell
     tort_x: ca.SX  # transport efficiency per x cell
+    T_ref: float = 298.15  # reference temperature [K]
     zero: ca.SX = field(default_factory=lambda: ca.SX(1, 1))
     a_s: dict[str, ca.SX] = field(default_factory=dict)  # specific surface area [m⁻¹]
     f_s: dict[str, ca.SX] = field(default_factory=dict)  # dθ/dt of the shells
@@ -137,6 +141,13 @@ class Context:
     dT2: ca.SX | None = None
 
 
+@dataclass
+class _PartialContext:
+    """What a hook may read before the context exists (the parameters: :meth:`Extension.cell_current`)."""
+
+    p: dict[str, ca.SX]
+
+
 def a_s_i(c: Context, e: str) -> ca.SX:
     """a_s i of electrode e [A m⁻³]: the volumetric reaction current."""
     return c.a_s[e] * c.i_int[e]
@@ -149,7 +160,9 @@ class DFN:
         mesh = mesh or Mesh()
         self.cell = cell
         self.mesh = mesh
-        self.layout = Layout(mesh)
+        self.options = ModelOptions.of(cell, isothermal)  # the extensions come with the cell
+        extra = tuple((e.key, e.n_states(mesh)) for e in self.options.extensions if e.n_states(mesh))
+        self.layout = Layout(mesh, extra)
         self.isothermal = isothermal
         self.T_ref = float(cell["T_ref"])
         self.i_ref = float(cell["Q_nom"]) / float(cell["A"])  # 1C current density [A m⁻²]
@@ -158,9 +171,21 @@ class DFN:
         self.vol = (self.xi_f[1:] ** 3 - self.xi_f[:-1] ** 3) / 3.0  # shell volumes / R³
 
     # --- parameters -----------------------------------------------------------------------------------
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of θ̄'s entries: the 18, then the extensions' ``KEY.NAME``."""
+        return self.options.parameter_names
+
+    @property
+    def n_theta(self) -> int:
+        return len(self.options.parameter_names)
+
     def physical(self, theta_bar: ca.SX) -> dict[str, ca.SX]:
-        """θ from θ̄ (eq. 1) as symbolic expressions."""
+        """θ from θ̄ (eq. 1) as symbolic expressions, keyed by :attr:`parameter_names`."""
         out = {}
+        for k, name in enumerate(self.options.parameter_names[len(parameters.DYNAMIC) :], len(parameters.DYNAMIC)):
+            spec_e = parameters.EXTENSION_SPECS[name]
+            out[name] = spec_e.lower + theta_bar[k] * (spec_e.upper - spec_e.lower)
         for k, spec in enumerate(parameters.DYNAMIC):
             tb = theta_bar[k]
             if spec.scale is parameters.Scale.LOG:
@@ -183,7 +208,8 @@ class DFN:
         self.kinetics(c)
         self.voltage(c)
         self.thermal(c)
-        f = ca.vertcat(c.f_s["n"], c.f_s["p"], c.dce, c.dT1, c.dT2)
+        rates = [e.rates(c, c.y[c.sl[e.key]]) for e in self.options.extensions if e.key in c.sl]
+        f = ca.vertcat(c.f_s["n"], c.f_s["p"], c.dce, c.dT1, c.dT2, *rates)
         g = ca.vertcat(c.g_s["n"], c.g_s["p"], c.g_e, c.g_bv["n"], c.g_bv["p"])
         sto_surf = ca.vertcat(c.surf["n"], c.surf["p"])
         return {
@@ -214,13 +240,16 @@ class DFN:
                 return float(cell[key])
             return eps[r] ** float(cell[f"brugg_{r}"])
 
+        I_cell = I_dis
+        for ext in self.options.extensions:
+            I_cell = ext.cell_current(_PartialContext(p), I_cell)
         return Context(
             y=y,
-            I_dis=I_dis,
+            I_dis=I_cell,
             T_amb=T_amb,
             p=p,
             sl=sl,
-            i_app=I_dis / float(cell["A"]),
+            i_app=I_cell / float(cell["A"]),
             T1=self.T_ref + y[sl["T1"]],
             T2=self.T_ref + y[sl["T2"]],
             ce=y[sl["ce"]] * C_SCALE,
@@ -231,6 +260,7 @@ class DFN:
             dx=dx,
             eps_x=ca.vertcat(*[ca.repmat(eps[r], nreg[r], 1) for r in ("n", "s", "p")]),
             tort_x=ca.vertcat(*[ca.repmat(transport(r), nreg[r], 1) for r in ("n", "s", "p")]),
+            T_ref=self.T_ref,
         )
 
     def solid_diffusion(self, c: Context) -> None:
@@ -333,6 +363,8 @@ class DFN:
             css = c.surf[e] * cmax
             i0 = k * ca.sqrt(ca.fmax(css, 1e-6) * ca.fmax(cmax - css, 1e-6) * ca.fmax(ce_e, 1e-6))
             U = cell.fn(f"U_{e}", c.surf[e], backend="casadi")
+            for ext in self.options.extensions:
+                U = ext.open_circuit(c, e, U)
             eta = c.y[c.sl[f"phis_{e}"]] - c.phie[off[e] : off[e] + nxe] - U - p[f"R_f_{e}"] * c.i_int[e]
             c.g_bv[e] = (c.i_int[e] - 2.0 * i0 * ca.sinh(F * eta / (2.0 * R_GAS * c.T1))) / self.i_ref
             # B3-B4: the potentials at the electrode's mean bulk stoichiometry (one evaluation per electrode)
@@ -344,6 +376,8 @@ class DFN:
     def voltage(self, c: Context) -> None:
         """A21: V = φ_s(L) − φ_s(0) − R_c I (φ_s(0) = 0)."""
         c.V = c.phis_L - float(self.cell["R_c"]) * c.I_dis
+        for ext in self.options.extensions:
+            c.V = ext.voltage(c, c.V)
 
     def thermal(self, c: Context) -> None:
         """B1–B3: two-node lumped thermal model with Bernardi's heat Q = I (U_bulk − V) − I T₁ ∂U_bulk/∂T (the

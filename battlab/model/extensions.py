@@ -1,0 +1,131 @@
+"""Model extensions: submodels of the compiled DFN–thermal model, chosen by a typed options value.
+
+An extension is a class (a frozen dataclass, one per catalog key). It declares its named parameters (in
+:data:`battlab.parameters.EXTENSIONS`: unit, the "off" value with which the model is the base model exactly,
+bounds, citation), its extra differential states (if any), and its contributions to the physics blocks of
+:class:`~battlab.model.dfn.DFN` through the hooks below, each the identity by default. Its parameters are appended
+to θ̄ (after the 18), so the compiled stepper gives exact sensitivities w.r.t. them like the 18.
+
+:class:`ModelOptions` is the option set: the thermal option and the extensions, in catalog order. It is part of
+the compiled stepper's cache key (the generated source differs per option set).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar
+
+import casadi as ca
+import numpy as np
+
+from battlab import parameters
+from protocols.errors import InputError
+
+if TYPE_CHECKING:
+    from battlab.cell import Cell
+    from battlab.model.dfn import DFN, Context
+    from battlab.model.mesh import Mesh
+
+
+@dataclass(frozen=True)
+class Extension:
+    """A submodel. Hooks take the evaluation :class:`~battlab.model.dfn.Context` (``c.p`` holds the physical
+    values of every parameter, an extension's as ``KEY.NAME``) and return the changed quantity."""
+
+    key: ClassVar[str]
+    #: the extension only makes sense with the thermal model on (its parameters act through the temperature)
+    requires_thermal: ClassVar[bool] = False
+
+    @property
+    def parameters(self) -> tuple[parameters.ExtensionParameter, ...]:
+        return parameters.EXTENSIONS[self.key]
+
+    def p(self, c: Context, name: str) -> ca.SX:
+        """The physical value of one of this extension's parameters in this evaluation."""
+        return c.p[f"{self.key}.{name}"]
+
+    def n_states(self, mesh: Mesh) -> int:
+        """Extra differential states (appended to x after the temperatures)."""
+        return 0
+
+    def initial_states(self, model: DFN, soc0: float) -> np.ndarray:
+        """Their values at rest."""
+        return np.zeros(self.n_states(model.mesh))
+
+    def cell_current(self, c: Context, I_dis: ca.SX) -> ca.SX:
+        """The current the cell carries [A, + = discharge], given the logged current ``I_dis``."""
+        return I_dis
+
+    def open_circuit(self, c: Context, e: str, U: ca.SX) -> ca.SX:
+        """The open-circuit potential of electrode ``e`` in its reaction overpotential (A19) [V]."""
+        return U
+
+    def voltage(self, c: Context, V: ca.SX) -> ca.SX:
+        """The terminal voltage (A21) [V]."""
+        return V
+
+    def rates(self, c: Context, x: ca.SX) -> ca.SX:
+        """Time derivatives of this extension's states ``x``."""
+        return ca.SX(0, 1)
+
+
+@dataclass(frozen=True)
+class ContactResistance(Extension):
+    """A series resistance R_c + dRc_dT (T₁ − T_ref) [Ω] on top of the cell's fixed R_c: V −= R I. Its Joule heat
+    R I² enters B3 through V (Bernardi's Q = I (U − V) − I T ∂U/∂T), as in PyBaMM's "contact resistance" option."""
+
+    key: ClassVar[str] = "contact_resistance"
+
+    def voltage(self, c: Context, V: ca.SX) -> ca.SX:
+        R = self.p(c, "R_c") + self.p(c, "dRc_dT") * (c.T1 - c.T_ref)
+        return V - R * c.I_dis
+
+
+@dataclass(frozen=True)
+class CurrentSensor(Extension):
+    """The logged current is a sensor's: I_log = (1 + gain) I_cell + offset (public sign, + = charge). The cell
+    carries I_cell = (I_log − offset)/(1 + gain); the model's input stays the logged current."""
+
+    key: ClassVar[str] = "current_sensor"
+
+    def cell_current(self, c: Context, I_dis: ca.SX) -> ca.SX:
+        # model sign (+ = discharge): I_dis,log = (1 + gain) I_dis,cell − offset
+        return (I_dis + self.p(c, "offset")) / (1.0 + self.p(c, "gain"))
+
+
+#: catalog key → extension class, in catalog order (the order of θ̄ after the 18)
+CATALOG: dict[str, type[Extension]] = {cls.key: cls for cls in (ContactResistance, CurrentSensor)}
+assert tuple(CATALOG) == tuple(parameters.EXTENSIONS), "the catalog and the parameter registry must agree"
+
+
+@dataclass(frozen=True)
+class ModelOptions:
+    """The option set of one compiled model: the thermal option and the extensions that are on (catalog order).
+
+    Immutable and hashable: a cache key. Contradictory options are one :class:`InputError`."""
+
+    isothermal: bool = False
+    extensions: tuple[Extension, ...] = ()
+
+    def __post_init__(self) -> None:
+        keys = [e.key for e in self.extensions]
+        if len(set(keys)) != len(keys):
+            raise InputError(f"model options: an extension is given twice ({keys})")
+        order = list(CATALOG)
+        object.__setattr__(self, "extensions", tuple(sorted(self.extensions, key=lambda e: order.index(e.key))))
+        if self.isothermal:
+            bad = [e.key for e in self.extensions if e.requires_thermal]
+            if bad:
+                raise InputError(
+                    f"extension {bad[0]!r} acts through the temperature: it cannot be on in an isothermal simulation"
+                )
+
+    @classmethod
+    def of(cls, cell: Cell, isothermal: bool = False) -> ModelOptions:
+        """The options a cell's extensions ask for."""
+        return cls(bool(isothermal), tuple(CATALOG[k]() for k in cell.extensions))
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """θ̄'s names: the 18, then every extension's ``KEY.NAME``."""
+        return parameters.NAMES + tuple(p.qualified for e in self.extensions for p in e.parameters)

@@ -1,0 +1,144 @@
+"""Model extensions: exact sensitivities w.r.t. their parameters (against central differences on the same steps),
+the base model reproduced at their "off" values, the option set in the compiled stepper's cache key, and the
+cell API that carries them."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import battlab
+from battlab import Cell, parameters
+from battlab.model import solver
+from battlab.model.extensions import CATALOG, ModelOptions
+from battlab.model.mesh import Mesh
+from battlab.model.solver import Settings
+from protocols import Profile
+from protocols.errors import InputError
+
+ONE_C = 2.7  # A, nca18650
+FD_STEP = 1e-5  # in θ̄
+FD_RTOL = 1e-3  # relative 2-norm over time
+
+#: per extension: values that switch it on (for the FD check away from "off")
+ON = {
+    "contact_resistance": {"R_c": 0.004, "dRc_dT": 5e-5},
+    "current_sensor": {"offset": 0.02, "gain": 0.01},
+}
+
+
+def pulses(duration: float = 400.0) -> Profile:
+    """20 s pulses at 2C, discharge and charge in turn with rests between them, 1 s samples."""
+    t = np.arange(0.0, duration + 1.0)
+    phase = (t // 20.0) % 4
+    return Profile(t, np.select([phase == 0, phase == 2], [-2.0 * ONE_C, 2.0 * ONE_C], 0.0))
+
+
+@pytest.fixture(scope="module")
+def nca() -> Cell:
+    return Cell.load("nca18650")
+
+
+def fd_errors(cell: Cell, prof: Profile, soc0: float, names: tuple[str, ...]) -> dict[str, float]:
+    """Relative 2-norm errors of dV/dθ̄ against central differences on the steps of the base run."""
+    res = battlab.simulate(cell, prof, soc0=soc0, sensitivities=list(names))
+    assert res.ended_by is None, res.ended_by
+    settings = replace(Settings(), replay=res.steps)
+    out = {}
+    for j, name in enumerate(names):
+        tb = cell.normalised(name)
+        plus = battlab.simulate(cell.with_normalised(**{name: tb + FD_STEP}), prof, soc0=soc0, settings=settings)
+        minus = battlab.simulate(cell.with_normalised(**{name: tb - FD_STEP}), prof, soc0=soc0, settings=settings)
+        fd = (plus.voltage - minus.voltage) / (2.0 * FD_STEP)
+        assert np.linalg.norm(fd) > 1e-6, f"{name}: no voltage sensitivity to check against"
+        out[name] = float(np.linalg.norm(res.sensitivities[:, j] - fd) / np.linalg.norm(fd))
+    return out
+
+
+@pytest.mark.parametrize("key", list(CATALOG))
+@pytest.mark.parametrize("where", ["on", "off"])
+def test_extension_sensitivities_match_finite_differences(nca: Cell, key: str, where: str) -> None:
+    cell = nca.with_extension(key, **(ON[key] if where == "on" else {}))
+    names = tuple(p.qualified for p in parameters.EXTENSIONS[key]) + ("R_s_n", "k_p")
+    errors = fd_errors(cell, pulses(), 0.6, names)
+    bad = {k: f"{v:.2e}" for k, v in errors.items() if not v <= FD_RTOL}
+    assert not bad, f"{key} ({where}): sensitivities off finite differences: {bad}"
+
+
+@pytest.mark.parametrize("key", list(CATALOG))
+def test_extension_at_its_off_values_is_the_base_model(nca: Cell, key: str) -> None:
+    prof = pulses()
+    base = battlab.simulate(nca, prof, soc0=0.6, sensitivities=["R_s_n", "c_e0"])
+    off = battlab.simulate(nca.with_extension(key), prof, soc0=0.6, sensitivities=["R_s_n", "c_e0"])
+    assert off.ended_by is None
+    np.testing.assert_allclose(off.voltage, base.voltage, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(off.T_surface, base.T_surface, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(off.sensitivities, base.sensitivities, rtol=0, atol=1e-11)
+
+
+def test_contact_resistance_drops_the_voltage_by_r_i(nca: Cell) -> None:
+    prof = pulses(60.0)
+    base = battlab.simulate(nca, prof, soc0=0.6, isothermal=True)
+    res = battlab.simulate(nca.with_extension("contact_resistance", R_c=0.01), prof, soc0=0.6, isothermal=True)
+    np.testing.assert_allclose(res.voltage - base.voltage, 0.01 * prof.current, atol=1e-12)
+
+
+def test_current_sensor_offset_is_a_current_the_cell_carries_at_rest(nca: Cell) -> None:
+    """A logged rest with a sensor offset of +0.05 A: the cell is discharged by 0.05 A (the log reads 0)."""
+    prof = Profile(np.arange(0.0, 3601.0, 60.0), np.zeros(61))
+    res = battlab.simulate(nca.with_extension("current_sensor", offset=0.05), prof, soc0=0.5, isothermal=True)
+    ref = battlab.simulate(nca, Profile(prof.t, np.full(61, -0.05)), soc0=0.5, isothermal=True)
+    np.testing.assert_allclose(res.voltage, ref.voltage, rtol=0, atol=1e-9)
+
+
+def test_option_sets_compile_separately_and_are_cached(nca: Cell) -> None:
+    on = nca.with_extension("contact_resistance", R_c=0.001)
+    a = solver.native_stepper(nca, Mesh(), False)
+    b = solver.native_stepper(on, Mesh(), False)
+    assert a is not b and b.model.n_theta == 20
+    assert solver.native_stepper(nca.with_extension("contact_resistance", R_c=0.002), Mesh(), False) is b
+    assert ModelOptions.of(on).parameter_names[-2:] == ("contact_resistance.R_c", "contact_resistance.dRc_dT")
+
+
+def test_cell_carries_its_extensions(nca: Cell) -> None:
+    cell = nca.with_extension("contact_resistance", R_c=0.0015)
+    assert cell.extensions == {"contact_resistance": {"R_c": 0.0015, "dRc_dT": 0.0}}
+    assert nca.extensions == {}
+    moved = cell.with_values(D_s_n=3e-14).with_normalised(**{"contact_resistance.R_c": 0.5})
+    assert moved.extensions["contact_resistance"]["R_c"] == pytest.approx(0.01)
+    assert moved.value("contact_resistance.R_c") == pytest.approx(0.01)
+    assert cell.hash() != nca.hash() and cell.static_hash() != nca.static_hash()
+    assert cell.static_hash() == moved.static_hash()
+    assert cell.without_extension("contact_resistance").hash() == nca.hash()
+    import pickle
+
+    assert pickle.loads(pickle.dumps(cell)).extensions == cell.extensions
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda c: c.with_extension("warp_drive"), "unknown model extension 'warp_drive'"),
+        (lambda c: c.with_extension("contact_resistance", R_x=1.0), "has no parameter 'R_x'"),
+        (lambda c: c.with_extension("current_sensor", gain=-1.5), "gain must be above -1"),
+        (lambda c: c.with_values(**{"contact_resistance.R_c": 0.1}), "extension 'contact_resistance' is not on"),
+    ],
+)
+def test_bad_extension_input_is_one_clear_error(nca: Cell, call, match: str) -> None:
+    with pytest.raises(InputError, match=match):
+        call(nca)
+
+
+def test_sensitivity_to_an_extension_that_is_off_is_refused(nca: Cell) -> None:
+    with pytest.raises(InputError, match="extension 'contact_resistance' is not on"):
+        battlab.simulate(nca, pulses(20.0), soc0=0.5, sensitivities=["contact_resistance.R_c"])
+
+
+def test_bpx_keeps_the_extensions(nca: Cell, tmp_path) -> None:
+    cell = nca.with_extension("contact_resistance", R_c=0.0015).with_extension("current_sensor", offset=-0.01)
+    back = Cell.from_bpx(cell.to_bpx(tmp_path / "cell.json"))
+    assert back.extensions == cell.extensions
+    assert list(back.extensions) == ["contact_resistance", "current_sensor"]
+    assert Cell.from_bpx(nca.to_bpx(tmp_path / "base.json")).extensions == {}
