@@ -142,3 +142,21 @@ def test_bpx_keeps_the_extensions(nca: Cell, tmp_path) -> None:
     assert back.extensions == cell.extensions
     assert list(back.extensions) == ["contact_resistance", "current_sensor"]
     assert Cell.from_bpx(nca.to_bpx(tmp_path / "base.json")).extensions == {}
+
+
+def test_a_fit_recovers_extension_parameters_with_the_base_ones(nca: Cell) -> None:
+    """The fit machinery takes KEY.NAME like the 18: a contact resistance and a sensor offset hidden in synthetic
+    data are found with R_f_n, from the base values."""
+    from battlab.identify import fit as F
+
+    truth = nca.with_extension("contact_resistance", R_c=0.006).with_extension("current_sensor", offset=0.03)
+    truth = truth.with_values(R_f_n=2e-4)
+    prof = pulses(1200.0)
+    y = battlab.simulate(truth, prof, soc0=0.6, settings=Settings(adaptive=False)).voltage  # the fit's steps
+    start = nca.with_extension("contact_resistance").with_extension("current_sensor")
+    exp = F.Experiment("pulses", prof, y, 0.6, 1e-8)
+    names = ("contact_resistance.R_c", "current_sensor.offset", "R_f_n")
+    res = F.fit(start, [exp], names)
+    assert res.cell.value("contact_resistance.R_c") == pytest.approx(0.006, rel=1e-3)
+    assert res.cell.value("current_sensor.offset") == pytest.approx(0.03, rel=1e-3)
+    assert res.cell.value("R_f_n") == pytest.approx(2e-4, rel=1e-3)
