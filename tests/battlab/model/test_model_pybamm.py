@@ -51,15 +51,26 @@ def pybamm_current(prof: Profile) -> Any:
     return balanced_sum(terms)
 
 
-def run_pybamm(path: Path, prof: Profile, soc0: float) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
-    """PyBaMM's DFN (isothermal) at 60 points per domain, rtol 1e-8, atol 1e-10: (times, voltage, temperatures)
-    at the profile's samples (right limits) up to its end or its voltage cut-off."""
+def run_pybamm(
+    path: Path,
+    prof: Profile,
+    soc0: float,
+    options: dict[str, str] | None = None,
+    values: dict[str, Any] | None = None,
+) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+    """PyBaMM's DFN (isothermal unless ``options`` say otherwise) at 60 points per domain, rtol 1e-8, atol 1e-10:
+    (times, voltage, temperatures) at the profile's samples (right limits) up to its end or its voltage cut-off.
+    ``options``: PyBaMM model options; ``values``: parameter values added or replaced."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         pv = pybamm.ParameterValues.create_from_bpx(str(path), target_soc=soc0)
     pv["Current function [A]"] = pybamm_current(prof)
+    pv.update(values or {}, check_already_exists=False)
     sim = pybamm.Simulation(
-        pybamm.lithium_ion.DFN(), parameter_values=pv, var_pts=FINE, solver=pybamm.IDAKLUSolver(rtol=1e-8, atol=1e-10)
+        pybamm.lithium_ion.DFN(options or {}),
+        parameter_values=pv,
+        var_pts=FINE,
+        solver=pybamm.IDAKLUSolver(rtol=1e-8, atol=1e-10),
     )
     t = prof.t - prof.t[0]
     query = np.concatenate([[0.0], t[1:-1] + RIGHT, [t[-1]]])
@@ -118,3 +129,30 @@ def test_charge_and_discharge_pulses(nmc_bpx: Path) -> None:
     assert rmse <= 1.0, f"voltage RMSE {rmse:.3f} mV against PyBaMM"
     charging = prof.current > 0
     assert np.all(v_ref[charging] > float(cell.ocv(0.55)))  # PyBaMM too sees charge as charge
+
+
+def pulse_profile(q: float) -> Profile:
+    """Discharge and charge pulses up to 3C from 60 % (the profile of the pulse test above), 1 s samples."""
+    steps = Profile.from_segments(
+        np.array([30.0, 60.0, 30.0, 60.0, 30.0, 120.0, 60.0, 210.0]),
+        np.array([0.0, -2.0, 0.0, 1.0, -3.0, 0.0, 2.0, 0.0]) * q,
+    )
+    t = np.arange(0.0, 601.0)
+    return Profile(t, steps.value_at(t))
+
+
+def test_contact_resistance_extension_against_pybamm(nmc_bpx: Path) -> None:
+    """battlab's contact_resistance extension (R_c = 2 mΩ, 75 mV at 3C) against PyBaMM's "contact resistance"
+    option on the pulses: RMSE ≤ 1 mV (the base model's agreement; benchmarks/bench_extensions.py measures it)."""
+    cell = Cell.from_bpx(nmc_bpx)
+    prof = pulse_profile(float(cell["Q_nom"]))
+    R_c = 0.002
+    opts, vals = {"contact resistance": "true"}, {"Contact resistance [Ohm]": R_c}
+    t_ref, v_ref, temps = run_pybamm(nmc_bpx, prof, 0.6, opts, vals)
+    assert t_ref.size == prof.t.size
+    ext = cell.with_extension("contact_resistance", R_c=R_c)
+    res = battlab.simulate(ext, prof, soc0=0.6, isothermal=True, ambient=temps["Ambient"], T0=temps["Initial"])
+    base = battlab.simulate(cell, prof, soc0=0.6, isothermal=True, ambient=temps["Ambient"], T0=temps["Initial"])
+    assert rmse_mV(base, t_ref, v_ref)[0] > 20.0  # the extension matters here
+    rmse, _ = rmse_mV(res, t_ref, v_ref)
+    assert rmse <= 1.0, f"voltage RMSE {rmse:.3f} mV against PyBaMM with contact resistance"
