@@ -110,6 +110,10 @@ def _ext(key: str, name: str, unit: str, lower: float, upper: float, off: float,
 
 _GUO = "M. Guo, G. Sikha, R. E. White, J. Electrochem. Soc. 158 (2011) A122 (contact resistance in a P2D model)"
 _PYBAMM = "PyBaMM lithium_ion options: 'contact resistance' (Sulzer et al., J. Open Res. Softw. 9 (2021) 14)"
+_AXEN = (
+    "one-state hysteresis: J. B. Axen, X. Chen, M. Fleischer, Energy Storage 4 (2022) e358; PyBaMM's "
+    "'open-circuit potential': 'one-state hysteresis'"
+)
 _SENSOR = "measurement model: a linear current sensor with offset and gain error (e.g. Arbin/Maccor specifications)"
 
 #: The model extensions and their parameters, by catalog key (the ``cause`` keys of ``battlab diagnose``).
@@ -121,6 +125,12 @@ EXTENSIONS: dict[str, tuple[ExtensionParameter, ...]] = {
     "current_sensor": (
         _ext("current_sensor", "offset", "A", -0.05, 0.05, 0.0, "offset of the logged current (+ = charge)", _SENSOR),
         _ext("current_sensor", "gain", "1", -0.02, 0.02, 0.0, "relative gain error of the logged current", _SENSOR),
+    ),
+    "hysteresis": (
+        _ext("hysteresis", "M_n", "V", 0.0, 0.05, 0.0, "negative OCP hysteresis half-width", _AXEN),
+        _ext("hysteresis", "gamma_n", "1", 1.0, 200.0, 50.0, "negative hysteresis decay rate per stoichiometry", _AXEN),
+        _ext("hysteresis", "M_p", "V", 0.0, 0.05, 0.0, "positive OCP hysteresis half-width", _AXEN),
+        _ext("hysteresis", "gamma_p", "1", 1.0, 200.0, 50.0, "positive hysteresis decay rate per stoichiometry", _AXEN),
     ),
 }
 

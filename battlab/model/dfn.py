@@ -122,6 +122,7 @@ class Context:
     eps_x: ca.SX  # electrolyte volume fraction per x cell
     tort_x: ca.SX  # transport efficiency per x cell
     T_ref: float = 298.15  # reference temperature [K]
+    cell: Cell | None = None
     zero: ca.SX = field(default_factory=lambda: ca.SX(1, 1))
     a_s: dict[str, ca.SX] = field(default_factory=dict)  # specific surface area [m⁻¹]
     f_s: dict[str, ca.SX] = field(default_factory=dict)  # dθ/dt of the shells
@@ -261,6 +262,7 @@ class DFN:
             eps_x=ca.vertcat(*[ca.repmat(eps[r], nreg[r], 1) for r in ("n", "s", "p")]),
             tort_x=ca.vertcat(*[ca.repmat(transport(r), nreg[r], 1) for r in ("n", "s", "p")]),
             T_ref=self.T_ref,
+            cell=cell,
         )
 
     def solid_diffusion(self, c: Context) -> None:

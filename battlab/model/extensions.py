@@ -93,8 +93,44 @@ class CurrentSensor(Extension):
         return (I_dis + self.p(c, "offset")) / (1.0 + self.p(c, "gain"))
 
 
+@dataclass(frozen=True)
+class Hysteresis(Extension):
+    """One-state OCP hysteresis per electrode (Axen et al. 2022, as PyBaMM's "one-state hysteresis"): a state h ∈
+    [−1, 1] per x cell, U = U_eq + M h in the reaction overpotential, and
+
+        dh/dt = γ (a_s i − |a_s i| h) / (2 F c_max ε_s),
+
+    so h → +1 on delithiation (a_s i > 0) and −1 on lithiation, at a rate γ per unit of stoichiometry passed; PyBaMM's
+    form with equal lithiation and delithiation decay rates and its branches U_eq ± M. h starts at 0 (rest on the
+    equilibrium curve). The heat's bulk OCP (B3) stays the equilibrium one."""
+
+    key: ClassVar[str] = "hysteresis"
+
+    def n_states(self, mesh: Mesh) -> int:
+        return mesh.n_n + mesh.n_p
+
+    def _h(self, c: Context, e: str) -> ca.SX:
+        h = c.y[c.sl[self.key]]
+        n_n = c.nreg["n"]
+        return h[:n_n] if e == "n" else h[n_n:]
+
+    def open_circuit(self, c: Context, e: str, U: ca.SX) -> ca.SX:
+        return U + self.p(c, f"M_{e}") * self._h(c, e)
+
+    def rates(self, c: Context, x: ca.SX) -> ca.SX:
+        from battlab.cell import F
+
+        out = []
+        for e in ("n", "p"):
+            h = self._h(c, e)
+            i_vol = c.a_s[e] * c.i_int[e]
+            scale = 2.0 * F * float(c.cell[f"c_max_{e}"]) * float(c.cell[f"eps_s_{e}"])
+            out.append(self.p(c, f"gamma_{e}") * (i_vol - ca.fabs(i_vol) * h) / scale)
+        return ca.vertcat(*out)
+
+
 #: catalog key → extension class, in catalog order (the order of θ̄ after the 18)
-CATALOG: dict[str, type[Extension]] = {cls.key: cls for cls in (ContactResistance, CurrentSensor)}
+CATALOG: dict[str, type[Extension]] = {cls.key: cls for cls in (ContactResistance, CurrentSensor, Hysteresis)}
 assert tuple(CATALOG) == tuple(parameters.EXTENSIONS), "the catalog and the parameter registry must agree"
 
 

@@ -26,6 +26,7 @@ FD_RTOL = 1e-3  # relative 2-norm over time
 ON = {
     "contact_resistance": {"R_c": 0.004, "dRc_dT": 5e-5},
     "current_sensor": {"offset": 0.02, "gain": 0.01},
+    "hysteresis": {"M_n": 0.01, "gamma_n": 30.0, "M_p": 0.005, "gamma_p": 80.0},
 }
 
 
@@ -41,8 +42,11 @@ def nca() -> Cell:
     return Cell.load("nca18650")
 
 
-def fd_errors(cell: Cell, prof: Profile, soc0: float, names: tuple[str, ...]) -> dict[str, float]:
-    """Relative 2-norm errors of dV/dθ̄ against central differences on the steps of the base run."""
+def fd_errors(
+    cell: Cell, prof: Profile, soc0: float, names: tuple[str, ...], dormant: tuple[str, ...] = ()
+) -> dict[str, float]:
+    """Relative 2-norm errors of dV/dθ̄ against central differences on the steps of the base run; ``dormant``
+    parameters may have no effect here (then both must be 0)."""
     res = battlab.simulate(cell, prof, soc0=soc0, sensitivities=list(names))
     assert res.ended_by is None, res.ended_by
     settings = replace(Settings(), replay=res.steps)
@@ -52,6 +56,9 @@ def fd_errors(cell: Cell, prof: Profile, soc0: float, names: tuple[str, ...]) ->
         plus = battlab.simulate(cell.with_normalised(**{name: tb + FD_STEP}), prof, soc0=soc0, settings=settings)
         minus = battlab.simulate(cell.with_normalised(**{name: tb - FD_STEP}), prof, soc0=soc0, settings=settings)
         fd = (plus.voltage - minus.voltage) / (2.0 * FD_STEP)
+        if np.linalg.norm(fd) <= 1e-9 and name in dormant:  # e.g. a hysteresis rate while its width is 0
+            assert np.linalg.norm(res.sensitivities[:, j]) <= 1e-9, f"{name}: FD 0, exact not"
+            continue
         assert np.linalg.norm(fd) > 1e-6, f"{name}: no voltage sensitivity to check against"
         out[name] = float(np.linalg.norm(res.sensitivities[:, j] - fd) / np.linalg.norm(fd))
     return out
@@ -62,7 +69,9 @@ def fd_errors(cell: Cell, prof: Profile, soc0: float, names: tuple[str, ...]) ->
 def test_extension_sensitivities_match_finite_differences(nca: Cell, key: str, where: str) -> None:
     cell = nca.with_extension(key, **(ON[key] if where == "on" else {}))
     names = tuple(p.qualified for p in parameters.EXTENSIONS[key]) + ("R_s_n", "k_p")
-    errors = fd_errors(cell, pulses(), 0.6, names)
+    # at "off", a parameter that only shapes the effect (not its size) has none
+    dormant = tuple(p.qualified for p in parameters.EXTENSIONS[key] if where == "off" and p.off != 0.0)
+    errors = fd_errors(cell, pulses(), 0.6, names, dormant)
     bad = {k: f"{v:.2e}" for k, v in errors.items() if not v <= FD_RTOL}
     assert not bad, f"{key} ({where}): sensitivities off finite differences: {bad}"
 
@@ -71,11 +80,17 @@ def test_extension_sensitivities_match_finite_differences(nca: Cell, key: str, w
 def test_extension_at_its_off_values_is_the_base_model(nca: Cell, key: str) -> None:
     prof = pulses()
     base = battlab.simulate(nca, prof, soc0=0.6, sensitivities=["R_s_n", "c_e0"])
-    off = battlab.simulate(nca.with_extension(key), prof, soc0=0.6, sensitivities=["R_s_n", "c_e0"])
+    # on the base run's steps: an extension's own states take part in the error control and move the steps (by
+    # less than the scheme's error: up to 0.04 mV with hysteresis on these pulses)
+    same_steps = replace(Settings(), replay=base.steps)
+    off = battlab.simulate(
+        nca.with_extension(key), prof, soc0=0.6, sensitivities=["R_s_n", "c_e0"], settings=same_steps
+    )
     assert off.ended_by is None
-    np.testing.assert_allclose(off.voltage, base.voltage, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(off.T_surface, base.T_surface, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(off.sensitivities, base.sensitivities, rtol=0, atol=1e-11)
+    # to round-off: Newton stops at a residual of 1e-9 (scaled) on a system with more unknowns
+    np.testing.assert_allclose(off.voltage, base.voltage, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(off.T_surface, base.T_surface, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(off.sensitivities, base.sensitivities, rtol=0, atol=1e-9)
 
 
 def test_contact_resistance_drops_the_voltage_by_r_i(nca: Cell) -> None:
