@@ -114,6 +114,8 @@ _AXEN = (
     "one-state hysteresis: J. B. Axen, X. Chen, M. Fleischer, Energy Storage 4 (2022) e358; PyBaMM's "
     "'open-circuit potential': 'one-state hysteresis'"
 )
+_ZHANG = "Arrhenius activation energies as in Q. Zhang et al., J. Power Sources 270 (2014) 367 (the cell's own values)"
+_LIN = "two-state lumped thermal model: X. Lin et al., J. Power Sources 257 (2014) 1 (heat capacities, heat transfer)"
 _SENSOR = "measurement model: a linear current sensor with offset and gain error (e.g. Arbin/Maccor specifications)"
 
 #: The model extensions and their parameters, by catalog key (the ``cause`` keys of ``battlab diagnose``).
@@ -125,6 +127,17 @@ EXTENSIONS: dict[str, tuple[ExtensionParameter, ...]] = {
     "current_sensor": (
         _ext("current_sensor", "offset", "A", -0.05, 0.05, 0.0, "offset of the logged current (+ = charge)", _SENSOR),
         _ext("current_sensor", "gain", "1", -0.02, 0.02, 0.0, "relative gain error of the logged current", _SENSOR),
+    ),
+    "thermal": (
+        *(
+            _ext(
+                "thermal", f"dE_{k}", "J/mol", -30000.0, 30000.0, 0.0, f"change of the activation energy E_{k}", _ZHANG
+            )
+            for k in ("D_s_n", "D_s_p", "k_n", "k_p", "D_e", "kappa")
+        ),
+        _ext("thermal", "h2a_scale", "1", 0.25, 4.0, 1.0, "factor on the surface-to-ambient heat transfer h2a", _LIN),
+        _ext("thermal", "C_scale", "1", 0.25, 4.0, 1.0, "factor on the heat capacities C1 and C2", _LIN),
+        _ext("thermal", "dUdT_offset", "V/K", -3e-4, 3e-4, 0.0, "offset of the cell's entropic coefficient", _LIN),
     ),
     "hysteresis": (
         _ext("hysteresis", "M_n", "V", 0.0, 0.05, 0.0, "negative OCP hysteresis half-width", _AXEN),

@@ -265,6 +265,13 @@ class DFN:
             cell=cell,
         )
 
+    def activation(self, c: Context, key: str) -> ca.SX | float:
+        """The activation energy ``key`` of B5 [J/mol]: the cell's, as the extensions change it."""
+        E: ca.SX | float = float(self.cell[key])
+        for ext in self.options.extensions:
+            E = ext.activation(c, key, E)
+        return E
+
     def solid_diffusion(self, c: Context) -> None:
         """A1, A2 (and the surface value of A20): shells in ξ = r/R_s per x cell; sets f_s, surf, bulk, a_s."""
         cell, m, p, y, sl = self.cell, self.mesh, c.p, c.y, c.sl
@@ -273,7 +280,7 @@ class DFN:
             nxe = c.nreg[e]
             sto = ca.reshape(y[sl["s" + e]], nr, nxe)  # column per x cell, row per shell
             R = p[f"R_s_{e}"]
-            D = p[f"D_s_{e}"] * _arrhenius(float(cell[f"E_D_s_{e}"]), self.T_ref, c.T1)
+            D = p[f"D_s_{e}"] * _arrhenius(self.activation(c, f"E_D_s_{e}"), self.T_ref, c.T1)
             cmax = float(cell[f"c_max_{e}"])
             ii = c.i_int[e]
             c.a_s[e] = 3.0 * float(cell[f"eps_s_{e}"]) / R
@@ -306,7 +313,9 @@ class DFN:
         cell, p, m = self.cell, c.p, self.mesh
         tp = p["t_plus"]
         De = (
-            p["D_e_scale"] * cell.fn("D_e", c.ce, backend="casadi") * _arrhenius(float(cell["E_D_e"]), self.T_ref, c.T1)
+            p["D_e_scale"]
+            * cell.fn("D_e", c.ce, backend="casadi")
+            * _arrhenius(self.activation(c, "E_D_e"), self.T_ref, c.T1)
         )
         De_eff = De * c.tort_x
         half = c.dx / 2.0
@@ -325,7 +334,7 @@ class DFN:
         kap = (
             p["kappa_scale"]
             * cell.fn("kappa", c.ce, backend="casadi")
-            * _arrhenius(float(cell["E_kappa"]), self.T_ref, c.T1)
+            * _arrhenius(self.activation(c, "E_kappa"), self.T_ref, c.T1)
         )
         tdf = 1.0 + p["dlnf_scale"] * cell.fn("dlnf", c.ce, backend="casadi")
         kap_eff = kap * c.tort_x
@@ -360,7 +369,7 @@ class DFN:
         for e in ("n", "p"):
             nxe = c.nreg[e]
             cmax = float(cell[f"c_max_{e}"])
-            k = p[f"k_{e}"] * _arrhenius(float(cell[f"E_k_{e}"]), self.T_ref, c.T1)
+            k = p[f"k_{e}"] * _arrhenius(self.activation(c, f"E_k_{e}"), self.T_ref, c.T1)
             ce_e = c.ce[off[e] : off[e] + nxe]
             css = c.surf[e] * cmax
             i0 = k * ca.sqrt(ca.fmax(css, 1e-6) * ca.fmax(cmax - css, 1e-6) * ca.fmax(ce_e, 1e-6))
@@ -385,14 +394,18 @@ class DFN:
         """B1–B3: two-node lumped thermal model with Bernardi's heat Q = I (U_bulk − V) − I T₁ ∂U_bulk/∂T (the
         Arrhenius law B5 enters the blocks above); sets Q, dT1, dT2 (zero when isothermal)."""
         cell = self.cell
-        c.Q = c.I_dis * (c.U_bulk - c.V) - c.I_dis * c.T1 * c.dUdT_bulk
+        th: dict[str, ca.SX | float] = {"dUdT": c.dUdT_bulk}
+        th |= {k: float(cell[k]) for k in ("C1", "C2", "h12", "h2a")}
+        for ext in self.options.extensions:
+            th = ext.heat(c, th)
+        c.Q = c.I_dis * (c.U_bulk - c.V) - c.I_dis * c.T1 * th["dUdT"]
         if self.isothermal:
             c.dT1 = ca.SX(0.0)
             c.dT2 = ca.SX(0.0)
         else:
-            h12, h2a = float(cell["h12"]), float(cell["h2a"])
-            c.dT1 = (h12 * (c.T2 - c.T1) + c.Q) / float(cell["C1"])
-            c.dT2 = (h12 * (c.T1 - c.T2) + h2a * (c.T_amb - c.T2)) / float(cell["C2"])
+            h12, h2a = th["h12"], th["h2a"]
+            c.dT1 = (h12 * (c.T2 - c.T1) + c.Q) / th["C1"]
+            c.dT2 = (h12 * (c.T1 - c.T2) + h2a * (c.T_amb - c.T2)) / th["C2"]
 
     def lithium(self, y: np.ndarray, theta_bar: np.ndarray) -> float:
         """Moles of lithium in solid + electrolyte at state y (for conservation checks)."""

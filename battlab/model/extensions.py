@@ -68,6 +68,15 @@ class Extension:
         """Time derivatives of this extension's states ``x``."""
         return ca.SX(0, 1)
 
+    def activation(self, c: Context, key: str, E: ca.SX | float) -> ca.SX | float:
+        """The activation energy ``key`` (``E_D_s_n``, ``E_k_p``, ``E_D_e``, ``E_kappa``, …) of B5 [J/mol]."""
+        return E
+
+    def heat(self, c: Context, thermal: dict[str, ca.SX | float]) -> dict[str, ca.SX | float]:
+        """The lumped thermal model's inputs (B1–B3): ``C1``, ``C2`` [J/K], ``h12``, ``h2a`` [W/K], ``dUdT`` [V/K]
+        (the cell's entropic coefficient at the bulk stoichiometries)."""
+        return thermal
+
 
 @dataclass(frozen=True)
 class ContactResistance(Extension):
@@ -129,8 +138,33 @@ class Hysteresis(Extension):
         return ca.vertcat(*out)
 
 
+@dataclass(frozen=True)
+class Thermal(Extension):
+    """The temperature dependence as identifiable parameters: changes of the six activation energies of B5
+    (dE_D_s_n, dE_D_s_p, dE_k_n, dE_k_p, dE_D_e, dE_kappa [J/mol] added to the cell's), factors on the surface-to-
+    ambient heat transfer (h2a_scale) and on both heat capacities (C_scale), and an offset of the cell's entropic
+    coefficient (dUdT_offset [V/K], in the reversible heat of B3). It acts through the temperature: an isothermal
+    simulation with it on is a contradiction (an error)."""
+
+    key: ClassVar[str] = "thermal"
+    requires_thermal: ClassVar[bool] = True
+
+    def activation(self, c: Context, key: str, E: ca.SX | float) -> ca.SX | float:
+        return E + self.p(c, "d" + key)
+
+    def heat(self, c: Context, thermal: dict[str, ca.SX | float]) -> dict[str, ca.SX | float]:
+        k = self.p(c, "C_scale")
+        return {
+            **thermal,
+            "C1": k * thermal["C1"],
+            "C2": k * thermal["C2"],
+            "h2a": self.p(c, "h2a_scale") * thermal["h2a"],
+            "dUdT": thermal["dUdT"] + self.p(c, "dUdT_offset"),
+        }
+
+
 #: catalog key → extension class, in catalog order (the order of θ̄ after the 18)
-CATALOG: dict[str, type[Extension]] = {cls.key: cls for cls in (ContactResistance, CurrentSensor, Hysteresis)}
+CATALOG: dict[str, type[Extension]] = {cls.key: cls for cls in (ContactResistance, CurrentSensor, Thermal, Hysteresis)}
 assert tuple(CATALOG) == tuple(parameters.EXTENSIONS), "the catalog and the parameter registry must agree"
 
 

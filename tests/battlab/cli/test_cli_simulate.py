@@ -183,6 +183,10 @@ BAD = {
     "unknown extension": (["nca18650", "{csv}", "--extension", "warp_drive"], "unknown model extension 'warp_drive'"),
     "extension value": (["nca18650", "{csv}", "--extension", "contact_resistance:R_c=big"], "--extension"),
     "extension name": (["nca18650", "{csv}", "--extension", "contact_resistance:R=1"], "has no parameter 'R'"),
+    "thermal extension when isothermal": (
+        ["nca18650", "{csv}", "--extension", "thermal:dE_k_n=1000", "--isothermal"],
+        "'thermal' acts through the temperature",
+    ),
     "sensitivity of an extension that is off": (
         ["nca18650", "{csv}", "--sens", "contact_resistance.R_c"],
         "extension 'contact_resistance' is not on",

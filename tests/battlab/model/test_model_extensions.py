@@ -21,11 +21,13 @@ from protocols.errors import InputError
 ONE_C = 2.7  # A, nca18650
 FD_STEP = 1e-5  # in θ̄
 FD_RTOL = 1e-3  # relative 2-norm over time
+AMBIENT = 283.15  # K: away from T_ref, so that every temperature dependence shows
 
 #: per extension: values that switch it on (for the FD check away from "off")
 ON = {
     "contact_resistance": {"R_c": 0.004, "dRc_dT": 5e-5},
     "current_sensor": {"offset": 0.02, "gain": 0.01},
+    "thermal": {"dE_D_s_n": 5000.0, "dE_k_p": -8000.0, "dE_kappa": 3000.0, "h2a_scale": 1.5, "dUdT_offset": 1e-4},
     "hysteresis": {"M_n": 0.01, "gamma_n": 30.0, "M_p": 0.005, "gamma_p": 80.0},
 }
 
@@ -47,14 +49,15 @@ def fd_errors(
 ) -> dict[str, float]:
     """Relative 2-norm errors of dV/dθ̄ against central differences on the steps of the base run; ``dormant``
     parameters may have no effect here (then both must be 0)."""
-    res = battlab.simulate(cell, prof, soc0=soc0, sensitivities=list(names))
+    res = battlab.simulate(cell, prof, soc0=soc0, ambient=AMBIENT, sensitivities=list(names))
     assert res.ended_by is None, res.ended_by
     settings = replace(Settings(), replay=res.steps)
     out = {}
     for j, name in enumerate(names):
         tb = cell.normalised(name)
-        plus = battlab.simulate(cell.with_normalised(**{name: tb + FD_STEP}), prof, soc0=soc0, settings=settings)
-        minus = battlab.simulate(cell.with_normalised(**{name: tb - FD_STEP}), prof, soc0=soc0, settings=settings)
+        kw = {"soc0": soc0, "ambient": AMBIENT, "settings": settings}
+        plus = battlab.simulate(cell.with_normalised(**{name: tb + FD_STEP}), prof, **kw)
+        minus = battlab.simulate(cell.with_normalised(**{name: tb - FD_STEP}), prof, **kw)
         fd = (plus.voltage - minus.voltage) / (2.0 * FD_STEP)
         if np.linalg.norm(fd) <= 1e-9 and name in dormant:  # e.g. a hysteresis rate while its width is 0
             assert np.linalg.norm(res.sensitivities[:, j]) <= 1e-9, f"{name}: FD 0, exact not"
@@ -144,6 +147,11 @@ def test_cell_carries_its_extensions(nca: Cell) -> None:
 def test_bad_extension_input_is_one_clear_error(nca: Cell, call, match: str) -> None:
     with pytest.raises(InputError, match=match):
         call(nca)
+
+
+def test_activation_energies_to_fit_in_an_isothermal_simulation_is_one_clear_error(nca: Cell) -> None:
+    with pytest.raises(InputError, match="'thermal' acts through the temperature"):
+        battlab.simulate(nca.with_extension("thermal"), pulses(20.0), soc0=0.5, isothermal=True)
 
 
 def test_sensitivity_to_an_extension_that_is_off_is_refused(nca: Cell) -> None:
