@@ -116,6 +116,8 @@ _AXEN = (
 )
 _ZHANG = "Arrhenius activation energies as in Q. Zhang et al., J. Power Sources 270 (2014) 367 (the cell's own values)"
 _LIN = "two-state lumped thermal model: X. Lin et al., J. Power Sources 257 (2014) 1 (heat capacities, heat transfer)"
+_SEI = "SEI growth at a constant rate (cf. PyBaMM's SEI submodels; Safari et al., J. Electrochem. Soc. 156 (2009) A145)"
+_LAM = "loss of active material at a constant rate (cf. PyBaMM's 'loss of active material'; Reniers et al. 2019)"
 _SENSOR = "measurement model: a linear current sensor with offset and gain error (e.g. Arbin/Maccor specifications)"
 
 #: The model extensions and their parameters, by catalog key (the ``cause`` keys of ``battlab diagnose``).
@@ -144,6 +146,11 @@ EXTENSIONS: dict[str, tuple[ExtensionParameter, ...]] = {
         _ext("hysteresis", "gamma_n", "1", 1.0, 200.0, 50.0, "negative hysteresis decay rate per stoichiometry", _AXEN),
         _ext("hysteresis", "M_p", "V", 0.0, 0.05, 0.0, "positive OCP hysteresis half-width", _AXEN),
         _ext("hysteresis", "gamma_p", "1", 1.0, 200.0, 50.0, "positive hysteresis decay rate per stoichiometry", _AXEN),
+    ),
+    "capacity_fade": (
+        _ext("capacity_fade", "I_side", "A", 0.0, 0.01, 0.0, "lithium-consuming side-reaction current", _SEI),
+        _ext("capacity_fade", "lam_n", "1/h", 0.0, 0.01, 0.0, "negative active-material loss rate", _LAM),
+        _ext("capacity_fade", "lam_p", "1/h", 0.0, 0.01, 0.0, "positive active-material loss rate", _LAM),
     ),
 }
 

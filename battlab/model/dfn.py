@@ -128,6 +128,7 @@ class Context:
     f_s: dict[str, ca.SX] = field(default_factory=dict)  # dθ/dt of the shells
     surf: dict[str, ca.SX] = field(default_factory=dict)  # surface stoichiometry per x cell
     bulk: dict[str, ca.SX] = field(default_factory=dict)  # mean stoichiometry per x cell
+    side: dict[str, ca.SX] = field(default_factory=dict)  # side-reaction current per volume [A m⁻³] (+ = anodic)
     src: ca.SX | None = None  # a_s i per x cell [A m⁻³]
     dce: ca.SX | None = None
     g_e: ca.SX | None = None
@@ -150,8 +151,11 @@ class _PartialContext:
 
 
 def a_s_i(c: Context, e: str) -> ca.SX:
-    """a_s i of electrode e [A m⁻³]: the volumetric reaction current."""
-    return c.a_s[e] * c.i_int[e]
+    """a_s i of electrode e [A m⁻³]: the volumetric reaction current (with the side reactions' when there are)."""
+    out = c.a_s[e] * c.i_int[e]
+    if e in c.side:
+        out = out + c.side[e]
+    return out
 
 
 class DFN:
@@ -204,6 +208,11 @@ class DFN:
         """
         c = self.context(y, I_dis, T_amb, theta_bar)
         self.solid_diffusion(c)
+        for ext in self.options.extensions:
+            for e in ("n", "p"):
+                side = ext.side_current(c, e)
+                if side is not None:
+                    c.side[e] = c.side[e] + side if e in c.side else side
         self.electrolyte(c)
         self.charge(c)
         self.kinetics(c)
@@ -284,6 +293,8 @@ class DFN:
             cmax = float(cell[f"c_max_{e}"])
             ii = c.i_int[e]
             c.a_s[e] = 3.0 * float(cell[f"eps_s_{e}"]) / R
+            for ext in self.options.extensions:
+                c.a_s[e] = ext.surface_area(c, e, c.a_s[e])
             dxi = np.diff(self.xi_c)
             rows = []
             surf_e = []

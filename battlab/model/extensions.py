@@ -68,6 +68,15 @@ class Extension:
         """Time derivatives of this extension's states ``x``."""
         return ca.SX(0, 1)
 
+    def surface_area(self, c: Context, e: str, a: ca.SX) -> ca.SX:
+        """The specific surface area a_s of electrode ``e`` [m⁻¹] (3 ε_s/R_s in the base model)."""
+        return a
+
+    def side_current(self, c: Context, e: str) -> ca.SX | None:
+        """A side reaction's current per volume in electrode ``e`` [A m⁻³, + = anodic], or None: it takes part in
+        charge conservation and the electrolyte's source, not in the particles' lithium."""
+        return None
+
     def activation(self, c: Context, key: str, E: ca.SX | float) -> ca.SX | float:
         """The activation energy ``key`` (``E_D_s_n``, ``E_k_p``, ``E_D_e``, ``E_kappa``, …) of B5 [J/mol]."""
         return E
@@ -163,8 +172,39 @@ class Thermal(Extension):
         }
 
 
+@dataclass(frozen=True)
+class CapacityFade(Extension):
+    """Ageing during a test. A lithium-consuming side reaction in the negative electrode (SEI growth at a constant
+    rate): I_side [A] in total, uniform, cathodic; it carries charge and takes Li⁺ from the electrolyte but not
+    lithium from the particles, so the cell loses cyclable lithium at I_side/F (and self-discharges at rest). Loss
+    of active material at a constant rate per electrode: a state f_e (the fraction left, from 1) with
+    df_e/dt = −lam_e/3600 and a_s = f_e · 3 ε_s/R_s (the lost material takes its lithium with it)."""
+
+    key: ClassVar[str] = "capacity_fade"
+
+    def n_states(self, mesh: Mesh) -> int:
+        return 2
+
+    def initial_states(self, model: DFN, soc0: float) -> np.ndarray:
+        return np.ones(2)
+
+    def side_current(self, c: Context, e: str) -> ca.SX | None:
+        if e != "n":
+            return None
+        return -self.p(c, "I_side") / (float(c.cell["A"]) * c.L["n"])
+
+    def surface_area(self, c: Context, e: str, a: ca.SX) -> ca.SX:
+        f = c.y[c.sl[self.key]]
+        return a * (f[0] if e == "n" else f[1])
+
+    def rates(self, c: Context, x: ca.SX) -> ca.SX:
+        return ca.vertcat(-self.p(c, "lam_n"), -self.p(c, "lam_p")) / 3600.0
+
+
 #: catalog key → extension class, in catalog order (the order of θ̄ after the 18)
-CATALOG: dict[str, type[Extension]] = {cls.key: cls for cls in (ContactResistance, CurrentSensor, Thermal, Hysteresis)}
+CATALOG: dict[str, type[Extension]] = {
+    cls.key: cls for cls in (ContactResistance, CurrentSensor, Thermal, Hysteresis, CapacityFade)
+}
 assert tuple(CATALOG) == tuple(parameters.EXTENSIONS), "the catalog and the parameter registry must agree"
 
 

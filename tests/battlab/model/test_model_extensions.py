@@ -28,6 +28,7 @@ ON = {
     "contact_resistance": {"R_c": 0.004, "dRc_dT": 5e-5},
     "current_sensor": {"offset": 0.02, "gain": 0.01},
     "thermal": {"dE_D_s_n": 5000.0, "dE_k_p": -8000.0, "dE_kappa": 3000.0, "h2a_scale": 1.5, "dUdT_offset": 1e-4},
+    "capacity_fade": {"I_side": 0.005, "lam_n": 0.008, "lam_p": 0.004},
     "hysteresis": {"M_n": 0.01, "gamma_n": 30.0, "M_p": 0.005, "gamma_p": 80.0},
 }
 
@@ -109,6 +110,24 @@ def test_current_sensor_offset_is_a_current_the_cell_carries_at_rest(nca: Cell) 
     res = battlab.simulate(nca.with_extension("current_sensor", offset=0.05), prof, soc0=0.5, isothermal=True)
     ref = battlab.simulate(nca, Profile(prof.t, np.full(61, -0.05)), soc0=0.5, isothermal=True)
     np.testing.assert_allclose(res.voltage, ref.voltage, rtol=0, atol=1e-9)
+
+
+def test_side_reaction_consumes_cyclable_lithium_at_i_side_over_f(nca: Cell) -> None:
+    """An hour at rest with I_side = 10 mA: the cell's lithium (solid + electrolyte) falls by I_side t / F, all of
+    it from the negative electrode, and the voltage falls as in a self-discharge."""
+    from battlab.cell import F
+
+    cell = nca.with_extension("capacity_fade", I_side=0.01)
+    t = np.arange(0.0, 3601.0, 60.0)
+    stepper = solver.native_stepper(cell, Mesh(), True)
+    th = cell.theta_bar()
+    limits = {"V_min": 2.0, "V_max": 4.5, "T_max": 400.0}
+    traj = solver.run_native(stepper, t, np.zeros(t.size), 298.15, th, 0.5, 298.15, [], Settings(), limits)
+    model = stepper.model
+    x0 = solver.initial_state(model, 0.5, th, 298.15)
+    lost = model.lithium(x0, th[:18]) - model.lithium(traj.final_state, th[:18])
+    assert lost == pytest.approx(0.01 * 3600.0 / F, rel=1e-6)
+    assert traj.voltage[-1] < traj.voltage[0] - 1e-4
 
 
 def test_option_sets_compile_separately_and_are_cached(nca: Cell) -> None:
