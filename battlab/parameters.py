@@ -118,6 +118,12 @@ _ZHANG = "Arrhenius activation energies as in Q. Zhang et al., J. Power Sources 
 _LIN = "two-state lumped thermal model: X. Lin et al., J. Power Sources 257 (2014) 1 (heat capacities, heat transfer)"
 _SEI = "SEI growth at a constant rate (cf. PyBaMM's SEI submodels; Safari et al., J. Electrochem. Soc. 156 (2009) A145)"
 _LAM = "loss of active material at a constant rate (cf. PyBaMM's 'loss of active material'; Reniers et al. 2019)"
+_VR = (
+    "concentration dependence of LiPF6 electrolytes: L. O. Valoen, J. N. Reimers, J. Electrochem. Soc. 152 (2005) A882"
+)
+_OCP = (
+    "electrode balancing: OCP stoichiometry shifts and offset (Mohtat et al. 2019, as cited by PyBaMM's electrode SOH)"
+)
 _SENSOR = "measurement model: a linear current sensor with offset and gain error (e.g. Arbin/Maccor specifications)"
 
 #: The model extensions and their parameters, by catalog key (the ``cause`` keys of ``battlab diagnose``).
@@ -141,6 +147,11 @@ EXTENSIONS: dict[str, tuple[ExtensionParameter, ...]] = {
         _ext("thermal", "C_scale", "1", 0.25, 4.0, 1.0, "factor on the heat capacities C1 and C2", _LIN),
         _ext("thermal", "dUdT_offset", "V/K", -3e-4, 3e-4, 0.0, "offset of the cell's entropic coefficient", _LIN),
     ),
+    "equilibrium": (
+        _ext("equilibrium", "d_sto_n", "1", -0.05, 0.05, 0.0, "shift of the negative OCP in stoichiometry", _OCP),
+        _ext("equilibrium", "d_sto_p", "1", -0.05, 0.05, 0.0, "shift of the positive OCP in stoichiometry", _OCP),
+        _ext("equilibrium", "dU", "V", -0.02, 0.02, 0.0, "offset of the open-circuit voltage", _OCP),
+    ),
     "hysteresis": (
         _ext("hysteresis", "M_n", "V", 0.0, 0.05, 0.0, "negative OCP hysteresis half-width", _AXEN),
         _ext("hysteresis", "gamma_n", "1", 1.0, 200.0, 50.0, "negative hysteresis decay rate per stoichiometry", _AXEN),
@@ -151,6 +162,11 @@ EXTENSIONS: dict[str, tuple[ExtensionParameter, ...]] = {
         _ext("capacity_fade", "I_side", "A", 0.0, 0.01, 0.0, "lithium-consuming side-reaction current", _SEI),
         _ext("capacity_fade", "lam_n", "1/h", 0.0, 0.01, 0.0, "negative active-material loss rate", _LAM),
         _ext("capacity_fade", "lam_p", "1/h", 0.0, 0.01, 0.0, "positive active-material loss rate", _LAM),
+    ),
+    "electrolyte": (
+        _ext("electrolyte", "De_slope", "1", -1.0, 1.0, 0.0, "relative slope of D_e in c_e/1000 mol m-3", _VR),
+        _ext("electrolyte", "kappa_slope", "1", -1.0, 1.0, 0.0, "relative slope of kappa in c_e/1000 mol m-3", _VR),
+        _ext("electrolyte", "dlnf_slope", "1", -1.0, 1.0, 0.0, "relative slope of dlnf in c_e/1000 mol m-3", _VR),
     ),
 }
 

@@ -328,6 +328,8 @@ class DFN:
             * cell.fn("D_e", c.ce, backend="casadi")
             * _arrhenius(self.activation(c, "E_D_e"), self.T_ref, c.T1)
         )
+        for ext in self.options.extensions:
+            De = ext.electrolyte_property(c, "D_e", De)
         De_eff = De * c.tort_x
         half = c.dx / 2.0
         # two-point face coefficients: 1 / (Δx_i/(2k_i) + Δx_{i+1}/(2k_{i+1}))
@@ -347,7 +349,11 @@ class DFN:
             * cell.fn("kappa", c.ce, backend="casadi")
             * _arrhenius(self.activation(c, "E_kappa"), self.T_ref, c.T1)
         )
-        tdf = 1.0 + p["dlnf_scale"] * cell.fn("dlnf", c.ce, backend="casadi")
+        dlnf = p["dlnf_scale"] * cell.fn("dlnf", c.ce, backend="casadi")
+        for ext in self.options.extensions:
+            kap = ext.electrolyte_property(c, "kappa", kap)
+            dlnf = ext.electrolyte_property(c, "dlnf", dlnf)
+        tdf = 1.0 + dlnf
         kap_eff = kap * c.tort_x
         half = c.dx / 2.0
         kap_f = 1.0 / (half[:-1] / kap_eff[:-1] + half[1:] / kap_eff[1:])
@@ -392,7 +398,10 @@ class DFN:
             # B3-B4: the potentials at the electrode's mean bulk stoichiometry (one evaluation per electrode)
             sign = 1.0 if e == "p" else -1.0
             mean_bulk = ca.sum1(c.bulk[e]) / nxe
-            c.U_bulk = c.U_bulk + sign * cell.fn(f"U_{e}", mean_bulk, backend="casadi")
+            U_mean = cell.fn(f"U_{e}", mean_bulk, backend="casadi")
+            for ext in self.options.extensions:
+                U_mean = ext.bulk_open_circuit(c, e, U_mean, mean_bulk)
+            c.U_bulk = c.U_bulk + sign * U_mean
             c.dUdT_bulk = c.dUdT_bulk + sign * cell.fn(f"dUdT_{e}", mean_bulk, backend="casadi")
 
     def voltage(self, c: Context) -> None:

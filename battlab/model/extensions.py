@@ -60,6 +60,15 @@ class Extension:
         """The open-circuit potential of electrode ``e`` in its reaction overpotential (A19) [V]."""
         return U
 
+    def bulk_open_circuit(self, c: Context, e: str, U: ca.SX, sto: ca.SX) -> ca.SX:
+        """The open-circuit potential of electrode ``e`` at its mean bulk stoichiometry ``sto`` (in the heat, B3)."""
+        return U
+
+    def electrolyte_property(self, c: Context, name: str, value: ca.SX) -> ca.SX:
+        """An electrolyte property per x cell: ``D_e`` [m² s⁻¹], ``kappa`` [S m⁻¹] (both before the transport
+        efficiency), ``dlnf`` (d ln f/d ln c_e)."""
+        return value
+
     def voltage(self, c: Context, V: ca.SX) -> ca.SX:
         """The terminal voltage (A21) [V]."""
         return V
@@ -201,9 +210,48 @@ class CapacityFade(Extension):
         return ca.vertcat(-self.p(c, "lam_n"), -self.p(c, "lam_p")) / 3600.0
 
 
+#: concentration the electrolyte extension's slopes are taken about [mol m⁻³]
+C_E_REF = 1000.0
+
+
+@dataclass(frozen=True)
+class Electrolyte(Extension):
+    """Concentration dependence of the electrolyte's properties beyond the cell's functions: D_e, κ and
+    d ln f/d ln c_e each multiplied by 1 + s (c_e/c_ref − 1), c_ref = 1000 mol m⁻³ (slopes De_slope, kappa_slope,
+    dlnf_slope). The base model's D_e_scale, kappa_scale, dlnf_scale and t_plus already scale them as a whole;
+    a concentration-dependent t⁺ (which adds a ∇t⁺ · i_e term) is not included."""
+
+    key: ClassVar[str] = "electrolyte"
+    _names: ClassVar[dict[str, str]] = {"D_e": "De_slope", "kappa": "kappa_slope", "dlnf": "dlnf_slope"}
+
+    def electrolyte_property(self, c: Context, name: str, value: ca.SX) -> ca.SX:
+        return value * (1.0 + self.p(c, self._names[name]) * (c.ce / C_E_REF - 1.0))
+
+
+@dataclass(frozen=True)
+class Equilibrium(Extension):
+    """Corrections of the open-circuit potentials: each electrode's curve shifted along its stoichiometry,
+    U_e(θ + d_sto_e) (as a shift of its stoichiometry window would move it), and an offset dU [V] of the positive
+    one (the cell's OCV; the two electrodes' offsets are indistinguishable in the voltage)."""
+
+    key: ClassVar[str] = "equilibrium"
+
+    def _corrected(self, c: Context, e: str, U: ca.SX, sto: ca.SX) -> ca.SX:
+        shifted = c.cell.fn(f"U_{e}", sto + self.p(c, f"d_sto_{e}"), backend="casadi")
+        U = U + (shifted - c.cell.fn(f"U_{e}", sto, backend="casadi"))
+        return U + self.p(c, "dU") if e == "p" else U
+
+    def open_circuit(self, c: Context, e: str, U: ca.SX) -> ca.SX:
+        return self._corrected(c, e, U, c.surf[e])
+
+    def bulk_open_circuit(self, c: Context, e: str, U: ca.SX, sto: ca.SX) -> ca.SX:
+        return self._corrected(c, e, U, sto)
+
+
 #: catalog key → extension class, in catalog order (the order of θ̄ after the 18)
 CATALOG: dict[str, type[Extension]] = {
-    cls.key: cls for cls in (ContactResistance, CurrentSensor, Thermal, Hysteresis, CapacityFade)
+    cls.key: cls
+    for cls in (ContactResistance, CurrentSensor, Thermal, Equilibrium, Hysteresis, CapacityFade, Electrolyte)
 }
 assert tuple(CATALOG) == tuple(parameters.EXTENSIONS), "the catalog and the parameter registry must agree"
 
