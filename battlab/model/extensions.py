@@ -237,9 +237,10 @@ class Equilibrium(Extension):
     key: ClassVar[str] = "equilibrium"
 
     def _corrected(self, c: Context, e: str, U: ca.SX, sto: ca.SX) -> ca.SX:
+        # replaces the cell's U (it comes first of the OCP hooks in catalog order, so U is the cell's own): one
+        # evaluation of the curve instead of a difference of two
         shifted = c.cell.fn(f"U_{e}", sto + self.p(c, f"d_sto_{e}"), backend="casadi")
-        U = U + (shifted - c.cell.fn(f"U_{e}", sto, backend="casadi"))
-        return U + self.p(c, "dU") if e == "p" else U
+        return shifted + self.p(c, "dU") if e == "p" else shifted
 
     def open_circuit(self, c: Context, e: str, U: ca.SX) -> ca.SX:
         return self._corrected(c, e, U, c.surf[e])
@@ -270,6 +271,7 @@ class ModelOptions:
         if len(set(keys)) != len(keys):
             raise InputError(f"model options: an extension is given twice ({keys})")
         order = list(CATALOG)
+        assert order.index("equilibrium") < order.index("hysteresis"), "equilibrium replaces U: it must come first"
         object.__setattr__(self, "extensions", tuple(sorted(self.extensions, key=lambda e: order.index(e.key))))
         if self.isothermal:
             bad = [e.key for e in self.extensions if e.requires_thermal]

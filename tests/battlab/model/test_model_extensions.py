@@ -29,7 +29,7 @@ ON = {
     "current_sensor": {"offset": 0.02, "gain": 0.01},
     "thermal": {"dE_D_s_n": 5000.0, "dE_k_p": -8000.0, "dE_kappa": 3000.0, "h2a_scale": 1.5, "dUdT_offset": 1e-4},
     "capacity_fade": {"I_side": 0.005, "lam_n": 0.008, "lam_p": 0.004},
-    "equilibrium": {"d_sto_n": 0.01, "d_sto_p": -0.008, "dU": 0.003},
+    "equilibrium": {"d_sto_n": -0.005, "d_sto_p": 0.005, "dU": 0.003},
     "electrolyte": {"De_slope": 0.3, "kappa_slope": -0.4, "dlnf_slope": 0.5},
     "hysteresis": {"M_n": 0.01, "gamma_n": 30.0, "M_p": 0.005, "gamma_p": 80.0},
 }
