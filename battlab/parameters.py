@@ -124,6 +124,7 @@ _VR = (
 _OCP = (
     "electrode balancing: OCP stoichiometry shifts and offset (Mohtat et al. 2019, as cited by PyBaMM's electrode SOH)"
 )
+_DL = "double layer in the differential surface form: PyBaMM 'surface form': 'differential' (Sulzer et al. 2021)"
 _SENSOR = "measurement model: a linear current sensor with offset and gain error (e.g. Arbin/Maccor specifications)"
 
 #: The model extensions and their parameters, by catalog key (the ``cause`` keys of ``battlab diagnose``).
@@ -157,6 +158,10 @@ EXTENSIONS: dict[str, tuple[ExtensionParameter, ...]] = {
         _ext("hysteresis", "gamma_n", "1", 1.0, 200.0, 50.0, "negative hysteresis decay rate per stoichiometry", _AXEN),
         _ext("hysteresis", "M_p", "V", 0.0, 0.05, 0.0, "positive OCP hysteresis half-width", _AXEN),
         _ext("hysteresis", "gamma_p", "1", 1.0, 200.0, 50.0, "positive hysteresis decay rate per stoichiometry", _AXEN),
+    ),
+    "double_layer": (
+        _ext("double_layer", "C_dl_n", "F/m2", 0.0, 2.0, 0.0, "negative double-layer capacitance", _DL),
+        _ext("double_layer", "C_dl_p", "F/m2", 0.0, 2.0, 0.0, "positive double-layer capacitance", _DL),
     ),
     "capacity_fade": (
         _ext("capacity_fade", "I_side", "A", 0.0, 0.01, 0.0, "lithium-consuming side-reaction current", _SEI),

@@ -43,6 +43,7 @@ class Layout:
 
     mesh: Mesh
     extra: tuple[tuple[str, int], ...] = ()  #: extensions' differential states (key, count), after T₂
+    extra_z: tuple[tuple[str, int], ...] = ()  #: extensions' algebraic states (key, count), after i⁺
 
     @property
     def n_sn(self) -> int:
@@ -59,9 +60,9 @@ class Layout:
 
     @property
     def nz(self) -> int:
-        """Algebraic states: φ_s⁻, φ_s⁺, φ_e, i⁻, i⁺."""
+        """Algebraic states: φ_s⁻, φ_s⁺, φ_e, i⁻, i⁺, the extensions' algebraic states."""
         m = self.mesh
-        return 2 * (m.n_n + m.n_p) + m.n_x
+        return 2 * (m.n_n + m.n_p) + m.n_x + sum(n for _, n in self.extra_z)
 
     @property
     def ny(self) -> int:
@@ -83,6 +84,7 @@ class Layout:
             ("phie", m.n_x),
             ("i_n", m.n_n),
             ("i_p", m.n_p),
+            *((f"{k}.z", n) for k, n in self.extra_z),
         ):
             out[name] = slice(pos, pos + n)
             pos += n
@@ -129,6 +131,8 @@ class Context:
     surf: dict[str, ca.SX] = field(default_factory=dict)  # surface stoichiometry per x cell
     bulk: dict[str, ca.SX] = field(default_factory=dict)  # mean stoichiometry per x cell
     side: dict[str, ca.SX] = field(default_factory=dict)  # side-reaction current per volume [A m⁻³] (+ = anodic)
+    capacitive: dict[str, ca.SX] = field(default_factory=dict)  # double-layer current per volume [A m⁻³]
+    U: dict[str, ca.SX] = field(default_factory=dict)  # OCP per electrode cell in the overpotential [V]
     src: ca.SX | None = None  # a_s i per x cell [A m⁻³]
     dce: ca.SX | None = None
     g_e: ca.SX | None = None
@@ -167,7 +171,8 @@ class DFN:
         self.mesh = mesh
         self.options = ModelOptions.of(cell, isothermal)  # the extensions come with the cell
         extra = tuple((e.key, e.n_states(mesh)) for e in self.options.extensions if e.n_states(mesh))
-        self.layout = Layout(mesh, extra)
+        extra_z = tuple((e.key, e.n_algebraic(mesh)) for e in self.options.extensions if e.n_algebraic(mesh))
+        self.layout = Layout(mesh, extra, extra_z)
         self.isothermal = isothermal
         self.T_ref = float(cell["T_ref"])
         self.i_ref = float(cell["Q_nom"]) / float(cell["A"])  # 1C current density [A m⁻²]
@@ -220,7 +225,8 @@ class DFN:
         self.thermal(c)
         rates = [e.rates(c, c.y[c.sl[e.key]]) for e in self.options.extensions if e.key in c.sl]
         f = ca.vertcat(c.f_s["n"], c.f_s["p"], c.dce, c.dT1, c.dT2, *rates)
-        g = ca.vertcat(c.g_s["n"], c.g_s["p"], c.g_e, c.g_bv["n"], c.g_bv["p"])
+        alg = [e.algebraic(c, c.y[c.sl[f"{e.key}.z"]]) for e in self.options.extensions if f"{e.key}.z" in c.sl]
+        g = ca.vertcat(c.g_s["n"], c.g_s["p"], c.g_e, c.g_bv["n"], c.g_bv["p"], *alg)
         sto_surf = ca.vertcat(c.surf["n"], c.surf["p"])
         return {
             "f": f,
@@ -362,7 +368,16 @@ class DFN:
         dlnc = ca.log(c.ce[1:]) - ca.log(c.ce[:-1])
         ie_f = -kap_f * ((phie[1:] - phie[:-1]) - 2.0 * R_GAS * c.T1 / F * (1.0 - tp) * tdf_f * dlnc)
         ie_full = ca.vertcat(c.zero, ie_f, c.zero)
-        c.g_e = ((ie_full[1:] - ie_full[:-1]) - c.src * c.dx) / self.i_ref
+        src = c.src
+        for ext in self.options.extensions:
+            for e in ("n", "p"):
+                cap = ext.capacitive_current(c, e)
+                if cap is not None:
+                    c.capacitive[e] = c.capacitive[e] + cap if e in c.capacitive else cap
+        if c.capacitive:  # charges the double layer: in the charge balance, not in the electrolyte's lithium
+            zn, zp = ca.SX.zeros(c.nreg["n"]), ca.SX.zeros(c.nreg["p"])
+            src = src + ca.vertcat(c.capacitive.get("n", zn), ca.SX.zeros(c.nreg["s"]), c.capacitive.get("p", zp))
+        c.g_e = ((ie_full[1:] - ie_full[:-1]) - src * c.dx) / self.i_ref
         for e in ("n", "p"):
             phis = c.y[c.sl[f"phis_{e}"]]
             h = c.L[e] / c.nreg[e]
@@ -376,7 +391,8 @@ class DFN:
                 right = c.i_app
                 c.phis_L = phis[-1] - (h / 2.0) * c.i_app / sig  # φ_s(L) from the collector's current
             is_full = ca.vertcat(left, is_f, right)
-            c.g_s[e] = ((is_full[1:] - is_full[:-1]) + a_s_i(c, e) * h) / self.i_ref
+            reaction = a_s_i(c, e) + c.capacitive[e] if e in c.capacitive else a_s_i(c, e)
+            c.g_s[e] = ((is_full[1:] - is_full[:-1]) + reaction * h) / self.i_ref
 
     def kinetics(self, c: Context) -> None:
         """A17–A20: Butler–Volmer with α_a = α_c = 0.5 and the film resistance; sets g_bv, and the potentials at
@@ -395,6 +411,7 @@ class DFN:
                 U = ext.open_circuit(c, e, U)
             eta = c.y[c.sl[f"phis_{e}"]] - c.phie[off[e] : off[e] + nxe] - U - p[f"R_f_{e}"] * c.i_int[e]
             c.g_bv[e] = (c.i_int[e] - 2.0 * i0 * ca.sinh(F * eta / (2.0 * R_GAS * c.T1))) / self.i_ref
+            c.U[e] = U
             # B3-B4: the potentials at the electrode's mean bulk stoichiometry (one evaluation per electrode)
             sign = 1.0 if e == "p" else -1.0
             mean_bulk = ca.sum1(c.bulk[e]) / nxe

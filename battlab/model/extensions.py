@@ -52,6 +52,19 @@ class Extension:
         """Their values at rest."""
         return np.zeros(self.n_states(model.mesh))
 
+    def n_algebraic(self, mesh: Mesh) -> int:
+        """Extra algebraic states (appended to z after i⁺; 0 is their guess at rest)."""
+        return 0
+
+    def algebraic(self, c: Context, z: ca.SX) -> ca.SX:
+        """Residuals of this extension's algebraic states ``z`` (scaled to order 1)."""
+        return ca.SX(0, 1)
+
+    def capacitive_current(self, c: Context, e: str) -> ca.SX | None:
+        """A non-faradaic current per volume in electrode ``e`` [A m⁻³, + = out of the solid], or None: it takes
+        part in charge conservation only."""
+        return None
+
     def cell_current(self, c: Context, I_dis: ca.SX) -> ca.SX:
         """The current the cell carries [A, + = discharge], given the logged current ``I_dis``."""
         return I_dis
@@ -210,6 +223,49 @@ class CapacityFade(Extension):
         return ca.vertcat(-self.p(c, "lam_n"), -self.p(c, "lam_p")) / 3600.0
 
 
+@dataclass(frozen=True)
+class DoubleLayer(Extension):
+    """Double-layer capacitance at the particle surface (PyBaMM's "surface form": "differential"): per electrode
+    cell a charge q [C m⁻²] (differential, dq/dt = i_dl) and its current i_dl [A m⁻²] (algebraic), with
+
+        q = C_dl (φ_s − φ_e − U) − ε i_dl,   a_s (i + i_dl) in the charge balance,
+
+    the faradaic i alone in the particles and the electrolyte's lithium. The capacitor is charged to the surface
+    overpotential (against U rather than 0: q = 0 at rest at any SOC; U moves by < 1e-4 V/s at 1C, a current
+    C_dl dU/dt far below i). ε = 1e-9 s (a 1e-9/C_dl Ω m² series resistance, < 1e-8 Ω m² for C_dl ≥ 0.1 F m⁻²)
+    keeps the zero-length solves regular at C_dl = 0, where q = i_dl = 0 exactly: the base model."""
+
+    key: ClassVar[str] = "double_layer"
+    EPS: ClassVar[float] = 1e-9  # [s]
+
+    def n_states(self, mesh: Mesh) -> int:
+        return mesh.n_n + mesh.n_p
+
+    def n_algebraic(self, mesh: Mesh) -> int:
+        return mesh.n_n + mesh.n_p
+
+    def _split(self, c: Context, v: ca.SX, e: str) -> ca.SX:
+        n_n = c.nreg["n"]
+        return v[:n_n] if e == "n" else v[n_n:]
+
+    def rates(self, c: Context, x: ca.SX) -> ca.SX:
+        return c.y[c.sl[f"{self.key}.z"]]
+
+    def capacitive_current(self, c: Context, e: str) -> ca.SX | None:
+        return c.a_s[e] * self._split(c, c.y[c.sl[f"{self.key}.z"]], e)
+
+    def algebraic(self, c: Context, z: ca.SX) -> ca.SX:
+        q = c.y[c.sl[self.key]]
+        off = {"n": 0, "p": c.nreg["n"] + c.nreg["s"]}
+        out = []
+        for e in ("n", "p"):
+            phis = c.y[c.sl[f"phis_{e}"]]
+            phie = c.phie[off[e] : off[e] + c.nreg[e]]
+            i_dl = self._split(c, z, e)
+            out.append(self._split(c, q, e) - self.p(c, f"C_dl_{e}") * (phis - phie - c.U[e]) + self.EPS * i_dl)
+        return ca.vertcat(*out) / 1e-3  # [C m⁻²]: 1 mC m⁻² ~ 0.2 F m⁻² at 5 mV
+
+
 #: concentration the electrolyte extension's slopes are taken about [mol m⁻³]
 C_E_REF = 1000.0
 
@@ -252,7 +308,16 @@ class Equilibrium(Extension):
 #: catalog key → extension class, in catalog order (the order of θ̄ after the 18)
 CATALOG: dict[str, type[Extension]] = {
     cls.key: cls
-    for cls in (ContactResistance, CurrentSensor, Thermal, Equilibrium, Hysteresis, CapacityFade, Electrolyte)
+    for cls in (
+        ContactResistance,
+        CurrentSensor,
+        Thermal,
+        Equilibrium,
+        Hysteresis,
+        DoubleLayer,
+        CapacityFade,
+        Electrolyte,
+    )
 }
 assert tuple(CATALOG) == tuple(parameters.EXTENSIONS), "the catalog and the parameter registry must agree"
 

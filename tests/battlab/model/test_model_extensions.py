@@ -28,6 +28,7 @@ ON = {
     "contact_resistance": {"R_c": 0.004, "dRc_dT": 5e-5},
     "current_sensor": {"offset": 0.02, "gain": 0.01},
     "thermal": {"dE_D_s_n": 5000.0, "dE_k_p": -8000.0, "dE_kappa": 3000.0, "h2a_scale": 1.5, "dUdT_offset": 1e-4},
+    "double_layer": {"C_dl_n": 0.2, "C_dl_p": 0.3},
     "capacity_fade": {"I_side": 0.005, "lam_n": 0.008, "lam_p": 0.004},
     "equilibrium": {"d_sto_n": -0.005, "d_sto_p": 0.005, "dU": 0.003},
     "electrolyte": {"De_slope": 0.3, "kappa_slope": -0.4, "dlnf_slope": 0.5},
@@ -70,8 +71,14 @@ def fd_errors(
     return out
 
 
-@pytest.mark.parametrize("key", list(CATALOG))
-@pytest.mark.parametrize("where", ["on", "off"])
+#: the voltage is not differentiable at C_dl = 0: for any C_dl > 0 the right limit at a current step holds the
+#: charge-transfer overpotential (the capacitor), at 0 it jumps; the score test needs a small positive reference
+SINGULAR_OFF = {"double_layer"}
+
+
+@pytest.mark.parametrize(
+    ("key", "where"), [(k, w) for w in ("on", "off") for k in CATALOG if not (w == "off" and k in SINGULAR_OFF)]
+)
 def test_extension_sensitivities_match_finite_differences(nca: Cell, key: str, where: str) -> None:
     cell = nca.with_extension(key, **(ON[key] if where == "on" else {}))
     names = tuple(p.qualified for p in parameters.EXTENSIONS[key]) + ("R_s_n", "k_p")

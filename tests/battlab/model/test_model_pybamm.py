@@ -225,3 +225,24 @@ def test_thermal_extension_activation_energies_against_pybamm(nmc_bpx: Path, tmp
     assert 1e3 * np.sqrt(np.mean(change_pybamm**2)) > 1.0  # the activation energies matter here
     rmse = 1e3 * np.sqrt(np.mean((change_battlab - change_pybamm) ** 2))
     assert rmse <= 1.0, f"voltage change RMSE {rmse:.3f} mV against PyBaMM"
+
+
+def test_double_layer_extension_against_pybamm(nmc_bpx: Path) -> None:
+    """battlab's double_layer extension (0.2 F/m² in both electrodes) against PyBaMM's "surface form":
+    "differential" on the pulses: RMSE ≤ 1 mV (measured 0.23 mV). Without it battlab is 18.5 mV off (278 mV at the
+    current steps, where the capacitor holds the overpotential at the right limit)."""
+    cell = Cell.from_bpx(nmc_bpx)
+    prof = pulse_profile(float(cell["Q_nom"]))
+    C = 0.2
+    vals = {
+        "Negative electrode double-layer capacity [F.m-2]": C,
+        "Positive electrode double-layer capacity [F.m-2]": C,
+    }
+    t_ref, v_ref, temps = run_pybamm(nmc_bpx, prof, 0.6, {"surface form": "differential"}, vals)
+    assert t_ref.size == prof.t.size
+    kw = {"soc0": 0.6, "isothermal": True, "ambient": temps["Ambient"], "T0": temps["Initial"]}
+    base = battlab.simulate(cell, prof, **kw)
+    res = battlab.simulate(cell.with_extension("double_layer", C_dl_n=C, C_dl_p=C), prof, **kw)
+    assert rmse_mV(base, t_ref, v_ref)[0] > 10.0  # the extension matters here
+    rmse, _ = rmse_mV(res, t_ref, v_ref)
+    assert rmse <= 1.0, f"voltage RMSE {rmse:.3f} mV against PyBaMM with a double layer"
