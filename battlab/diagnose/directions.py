@@ -19,6 +19,10 @@ from battlab.model.extensions import CATALOG
 from battlab.simulation import simulate
 from protocols.profile import Profile
 
+#: causes tested by default: every catalog extension whose voltage is differentiable at "off" (the double layer's is
+#: not at C_dl = 0: for any C_dl > 0 the right limit at a current step holds the overpotential)
+DEFAULT_CAUSES: tuple[str, ...] = tuple(k for k in CATALOG if k != "double_layer")
+
 
 @dataclass(frozen=True)
 class Directions:
@@ -42,13 +46,13 @@ def extension_directions(
     ambient: float = 298.15,
     isothermal: bool = False,
 ) -> list[Directions]:
-    """Directions of every catalog extension (or of ``causes``) at the fitted base ``cell``: its extensions are
-    switched off first; an extension that cannot run here (``thermal`` when isothermal) is left out."""
+    """Directions of the extensions :data:`DEFAULT_CAUSES` (or ``causes``) at the fitted base ``cell``: its
+    extensions are switched off first; one that cannot run here (``thermal`` when isothermal) is left out."""
     base = cell
     for key in list(cell.extensions):
         base = base.without_extension(key)
     out = []
-    for key in causes or list(CATALOG):
+    for key in causes or DEFAULT_CAUSES:
         if isothermal and CATALOG[key].requires_thermal:
             continue
         ext = base.with_extension(key)
