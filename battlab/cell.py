@@ -158,6 +158,8 @@ class Cell:
     values: Mapping[str, Value]
     sources: Mapping[str, str] = field(default_factory=dict)
     description: str = ""
+    #: model extensions switched on: catalog key → {parameter name: value (SI)}, every parameter present
+    extensions: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         vals = {k: _check_value(k, v) for k, v in self.values.items()}
@@ -177,10 +179,15 @@ class Cell:
             raise InputError(f"cell {self.name!r}: V_min {vals['V_min']} must be below V_max {vals['V_max']}")
         object.__setattr__(self, "values", MappingProxyType(vals))
         object.__setattr__(self, "sources", MappingProxyType(dict(self.sources)))
+        exts = {k: _check_extension(self.name, k, v) for k, v in dict(self.extensions).items()}
+        order = list(parameters.EXTENSIONS)
+        ordered = {k: MappingProxyType(exts[k]) for k in sorted(exts, key=order.index)}
+        object.__setattr__(self, "extensions", MappingProxyType(ordered))
 
     def __reduce__(self) -> tuple:
         """Cells pickle (for worker processes and Dask) as their plain values."""
-        return (Cell, (self.name, dict(self.values), dict(self.sources), self.description))
+        exts = {k: dict(v) for k, v in self.extensions.items()}
+        return (Cell, (self.name, dict(self.values), dict(self.sources), self.description, exts))
 
     # --- construction ---------------------------------------------------------------------------------
     @classmethod
@@ -262,39 +269,90 @@ class Cell:
         return self.values.get(key, default)
 
     def with_values(self, **updates: Any) -> Cell:
-        """A new cell with some values replaced; unknown names and impossible values are errors."""
-        for k in updates:
-            if k not in KEYS:
-                raise InputError(f"unknown parameter {k!r}; dynamic parameters are {', '.join(parameters.NAMES)}")
+        """A new cell with some values replaced; unknown names and impossible values are errors. An extension's
+        parameter may be given as ``KEY.NAME`` (the extension must be on)."""
+        ext_updates: dict[str, dict[str, Any]] = {}
+        for k in list(updates):
+            if k in KEYS:
+                continue
+            if k in parameters.EXTENSION_SPECS:
+                sp = parameters.EXTENSION_SPECS[k]
+                if sp.extension not in self.extensions:
+                    raise InputError(f"parameter {k!r}: the extension {sp.extension!r} is not on in cell {self.name!r}")
+                ext_updates.setdefault(sp.extension, {})[sp.name] = updates.pop(k)
+                continue
+            raise InputError(f"unknown parameter {k!r}; dynamic parameters are {', '.join(parameters.NAMES)}")
         vals = dict(self.values)
         vals.update(updates)
         src = {k: v for k, v in self.sources.items() if k not in updates}
-        return Cell(self.name, vals, src, self.description)
+        exts = {k: {**v, **ext_updates.get(k, {})} for k, v in self.extensions.items()}
+        return Cell(self.name, vals, src, self.description, exts)
+
+    def with_extension(self, key: str, **values: float) -> Cell:
+        """A new cell with the catalog extension ``key`` on (see :data:`battlab.parameters.EXTENSIONS`), its
+        parameters at ``values`` [SI] and the rest at their earlier values, or their "off" values (with which
+        the model is the base model exactly)."""
+        exts = {k: dict(v) for k, v in self.extensions.items()}
+        exts[key] = {**exts.get(key, {}), **values}
+        return Cell(self.name, self.values, self.sources, self.description, exts)
+
+    def without_extension(self, key: str) -> Cell:
+        """A new cell with the extension ``key`` off."""
+        exts = {k: dict(v) for k, v in self.extensions.items() if k != key}
+        return Cell(self.name, self.values, self.sources, self.description, exts)
 
     def renamed(self, name: str, description: str | None = None) -> Cell:
-        return Cell(name, self.values, self.sources, self.description if description is None else description)
+        desc = self.description if description is None else description
+        return Cell(name, self.values, self.sources, desc, {k: dict(v) for k, v in self.extensions.items()})
+
+    def parameter_names(self) -> tuple[str, ...]:
+        """The identified parameters of this cell's model: the 18, then each extension's ``KEY.NAME`` (the order
+        of θ̄ in the compiled model)."""
+        ext = tuple(p.qualified for k in self.extensions for p in parameters.EXTENSIONS[k])
+        return parameters.NAMES + ext
+
+    def theta_bar(self) -> np.ndarray:
+        """θ̄ of every identified parameter, in :meth:`parameter_names` order."""
+        return np.array([self.normalised(n) for n in self.parameter_names()])
+
+    def value(self, name: str) -> float:
+        """The value of an identified parameter (one of the 18 or ``KEY.NAME`` of an extension that is on)."""
+        if name in parameters.EXTENSION_SPECS:
+            sp = parameters.EXTENSION_SPECS[name]
+            if sp.extension not in self.extensions:
+                raise InputError(f"parameter {name!r}: the extension {sp.extension!r} is not on in cell {self.name!r}")
+            return float(self.extensions[sp.extension][sp.name])
+        return float(self[name])
 
     def normalised(self, name: str) -> float:
-        """θ̄ of a dynamic parameter (eq. 1); may lie outside [0, 1]."""
-        return parameters.spec(name).normalise(float(self[name]))
+        """θ̄ of an identified parameter (eq. 1); may lie outside [0, 1]."""
+        return parameters.spec(name).normalise(self.value(name))
 
     def with_normalised(self, **updates: float) -> Cell:
-        """A new cell with dynamic parameters set from θ̄ (eq. 1)."""
+        """A new cell with identified parameters set from θ̄ (eq. 1)."""
         return self.with_values(**{k: parameters.spec(k).denormalise(float(v)) for k, v in updates.items()})
 
     def dynamic_values(self) -> dict[str, float]:
         return {n: float(self[n]) for n in parameters.NAMES}
 
     def hash(self) -> str:
-        """SHA-256 of the canonical JSON of all values (keys sorted): identifies the parameter set."""
-        blob = json.dumps({k: to_json(v) for k, v in sorted(self.values.items())}, sort_keys=True)
+        """SHA-256 of the canonical JSON of all values (keys sorted) and the extensions: identifies the
+        parameter set."""
+        data: dict[str, Any] = {k: to_json(v) for k, v in sorted(self.values.items())}
+        if self.extensions:
+            data["extensions"] = {k: dict(v) for k, v in self.extensions.items()}
+        blob = json.dumps(data, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()
 
     def static_hash(self) -> str:
-        """The hash of every value except the 18 identified parameters (which the compiled model takes as
-        inputs): cells that differ only in those share one compiled model."""
+        """The hash of every value except the identified parameters (which the compiled model takes as inputs),
+        with the set of extensions that are on (they change the equations): cells that differ only in identified
+        values share one compiled model."""
         dyn = set(parameters.NAMES)
-        blob = json.dumps({k: to_json(v) for k, v in sorted(self.values.items()) if k not in dyn}, sort_keys=True)
+        data: dict[str, Any] = {k: to_json(v) for k, v in sorted(self.values.items()) if k not in dyn}
+        if self.extensions:
+            data["extensions"] = list(self.extensions)
+        blob = json.dumps(data, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()
 
     # --- equilibrium ----------------------------------------------------------------------------------
@@ -348,6 +406,26 @@ class Cell:
             return float(self["n_Li"])
         n0, _, p0, _ = self.stoichiometry_window()
         return self.electrode_moles("n") * n0 + self.electrode_moles("p") * p0
+
+
+def _check_extension(cell: str, key: str, values: Mapping[str, Any]) -> dict[str, float]:
+    """An extension's values, complete (missing ones at "off") and finite; unknown keys and names are errors."""
+    specs = parameters.extension_parameters(key)
+    known = {p.name: p for p in specs}
+    out = {p.name: p.off for p in specs}
+    for name, v in dict(values).items():
+        if name not in known:
+            raise InputError(f"cell {cell!r}: extension {key!r} has no parameter {name!r}; expected {', '.join(known)}")
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            x = math.nan
+        if not math.isfinite(x):
+            raise InputError(f"cell {cell!r}: extension {key}: {name} must be a finite number [{known[name].unit}]")
+        out[name] = x
+    if key == "current_sensor" and out["gain"] <= -1.0:
+        raise InputError(f"cell {cell!r}: extension current_sensor: gain must be above -1, got {out['gain']:g}")
+    return out
 
 
 def _window_from_lithium(cell: Cell) -> tuple[float, float, float, float]:

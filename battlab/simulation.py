@@ -74,9 +74,10 @@ def simulate(
 ) -> Result:
     """Simulate ``cell`` under ``profile`` from rest at ``soc0`` (default: the profile's own ``soc0``).
 
-    ambient and T0 (initial temperature, default ambient) in K. ``sensitivities``: names of dynamic
-    parameters (any subset of the 18, in the order wanted). The run stops cleanly at the cell's voltage limits
-    (or ``v_limits``), at its maximum surface temperature, or when a particle surface empties or fills:
+    ambient and T0 (initial temperature, default ambient) in K. ``sensitivities``: names of identified
+    parameters (any subset of the 18 and the ``KEY.NAME`` of the cell's extensions, in the order wanted). The run
+    stops cleanly at the cell's voltage limits (or ``v_limits``), at its maximum surface temperature, or when a
+    particle surface empties or fills:
     ``ended_by`` says why; the arrays then end at the last sample within limits.
 
     backend: "native" (the compiled stepper; needs a C compiler), "casadi" (the same scheme inside CasADi,
@@ -93,14 +94,15 @@ def simulate(
         raise InputError(f"soc0 must be in [0, 1], got {soc0}")
     if not 150.0 < ambient < 400.0:
         raise InputError(f"ambient temperature must be in K (150–400), got {ambient}")
-    names = parameters.check_names(list(sensitivities))
+    names = check_sensitivities(cell, sensitivities)
     if backend not in ("auto", "native", "casadi"):
         raise InputError(f"backend must be 'auto', 'native' or 'casadi', got {backend!r}")
     mesh = mesh or Mesh()
     settings = settings or solver.Settings()
     ns = len(names)
-    theta_bar = np.array([cell.normalised(n) for n in parameters.NAMES])
-    sel = [parameters.NAMES.index(n) for n in names]
+    theta_bar = cell.theta_bar()
+    all_names = cell.parameter_names()
+    sel = [all_names.index(n) for n in names]
     vmin, vmax = v_limits or (float(cell["V_min"]), float(cell["V_max"]))
     if not (np.isfinite(vmin) and np.isfinite(vmax) and vmin < vmax):
         raise InputError(f"v_limits must be finite with V_min < V_max, got {v_limits}")
@@ -121,7 +123,7 @@ def simulate(
     else:
         comp = solver.compile_model(cell, mesh, isothermal, ns, settings.chunk)
         build = comp.build_seconds
-        E = np.zeros((len(parameters.NAMES), ns))
+        E = np.zeros((len(all_names), ns))
         E[sel, np.arange(ns)] = 1.0
         traj = solver.run(comp, *args, E if ns else None, settings, limits)
     n = traj.n_samples
@@ -143,6 +145,17 @@ def simulate(
         },
         steps=traj.steps,
     )
+
+
+def check_sensitivities(cell: Cell, names: Sequence[str]) -> tuple[str, ...]:
+    """Validate sensitivity names against the cell's identified parameters (the 18 and its extensions')."""
+    out = parameters.check_names(list(names))
+    known = cell.parameter_names()
+    for n in out:
+        if n not in known:
+            key = n.split(".")[0]
+            raise InputError(f"sensitivity {n!r}: the extension {key!r} is not on (cell.with_extension({key!r}, ...))")
+    return out
 
 
 def _native(cell: Cell, mesh: Mesh, isothermal: bool):  # -> NativeStepper | None

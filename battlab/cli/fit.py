@@ -14,6 +14,8 @@ from typing import Any
 
 import click
 
+from battlab.cli.options import apply_extensions, extension_option
+
 #: ``--ambient [FILE=]DEGC`` of fit and validate (see :func:`parse_ambients`)
 AMBIENT_OPTION = click.option(
     "--ambient",
@@ -54,6 +56,7 @@ AMBIENT_OPTION = click.option(
 @click.option("--dt", type=float, default=1.0, show_default=True, help="Resample dynamic data to this step [s].")
 @click.option("--max-iter", type=int, default=40, show_default=True, help="Function evaluations per stage.")
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
+@extension_option()
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="cell.bpx.json")
 def fit(
     data: tuple[str, ...],
@@ -67,6 +70,7 @@ def fit(
     dt: float,
     max_iter: int,
     fix_sign: bool,
+    extensions: tuple[str, ...],
     output: str,
 ) -> None:
     """Identify CELL's parameters from DATA (equilibrium from an OCV test, dynamics by weighted LM).
@@ -80,6 +84,11 @@ def fit(
     from battlab.io import paths
     from protocols.errors import InputError
 
+    start: Any = cell_name
+    if extensions:  # the extensions' parameters join the last stage (with --params all: every parameter)
+        from battlab.cell import Cell
+
+        start = apply_extensions(Cell.load(cell_name), extensions)
     out = paths.check_output_path(output, create=True)
     stem = out.name.removesuffix(".json").removesuffix(".bpx")
     summary_path = paths.summary_path(out)
@@ -114,7 +123,7 @@ def fit(
     try:
         rep = workflow.fit(
             data,
-            cell_name,
+            start,
             plan=plan,
             params=params,
             ocp_terms=ocp_terms,

@@ -45,4 +45,49 @@ def physics_option(*, auto: bool, default: str) -> Any:
     )
 
 
-__all__ = ["PHYSICS", "AliasChoice", "physics_option"]
+def extension_option() -> Any:
+    """``--extension KEY[:NAME=VALUE,...]`` (repeatable): switch a catalog model extension on."""
+    from battlab.parameters import EXTENSIONS
+
+    return click.option(
+        "--extension",
+        "extensions",
+        multiple=True,
+        metavar="KEY[:NAME=VALUE,...]",
+        help="Switch a model extension on, its parameters [SI] at VALUE (the rest at their 'off' values); "
+        f"repeatable. KEY: {', '.join(EXTENSIONS)}. E.g. contact_resistance:R_c=0.0015.",
+    )
+
+
+def apply_extensions(cell: Any, specs: Sequence[str], isothermal: bool = False) -> Any:
+    """``cell`` with the ``--extension`` specs switched on; a bad spec or a contradiction with ``isothermal`` is
+    one :class:`InputError` naming the option."""
+    from battlab.model.extensions import ModelOptions
+    from protocols.errors import InputError
+
+    for spec in specs:
+        key, _, rest = spec.partition(":")
+        values: dict[str, float] = {}
+        for item in filter(None, (s.strip() for s in rest.split(","))):
+            name, eq, text = item.partition("=")
+            try:
+                values[name.strip()] = float(text)
+            except ValueError:
+                raise InputError(
+                    f"--extension {spec!r}: expected KEY[:NAME=VALUE,...] with numbers, e.g. "
+                    "contact_resistance:R_c=0.0015"
+                ) from None
+            if not eq:
+                raise InputError(f"--extension {spec!r}: {item!r} is not NAME=VALUE")
+        try:
+            cell = cell.with_extension(key.strip(), **values)
+        except InputError as exc:
+            raise InputError(f"--extension {spec!r}: {exc}") from None
+    try:
+        ModelOptions.of(cell, isothermal)
+    except InputError as exc:
+        raise InputError(f"--extension with --isothermal: {exc}") from None
+    return cell
+
+
+__all__ = ["PHYSICS", "AliasChoice", "apply_extensions", "extension_option", "physics_option"]

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import click
 
+from battlab.cli.options import apply_extensions, extension_option
 from protocols.errors import InputError
 from protocols.profile import Profile
 
@@ -29,7 +30,12 @@ if TYPE_CHECKING:
     help="Stop outside these voltages [V] instead of the cell's window (to follow logged data through the "
     "excursions it shows, e.g. regen at full charge).",
 )
-@click.option("--sens", default="", help="Comma-separated parameters for dV/dθ̄ (e.g. R_s_n,D_s_n) or 'all'.")
+@click.option(
+    "--sens",
+    default="",
+    help="Comma-separated parameters for dV/dθ̄ (e.g. R_s_n,D_s_n,contact_resistance.R_c) or 'all'.",
+)
+@extension_option()
 @click.option(
     "-o",
     "--output",
@@ -46,6 +52,7 @@ def simulate(
     isothermal: bool,
     v_limits: str | None,
     sens: str,
+    extensions: tuple[str, ...],
     output: str,
 ) -> None:
     """Simulate CELL (a built-in name or a BPX file) under PROFILE.
@@ -53,18 +60,17 @@ def simulate(
     PROFILE is a CSV with the columns 'Test Time / s' and 'Current / A' (positive = charge), or
     ``library:ID`` for a profile of the OED input library (which then also gives the start SOC).
     """
-    from battlab import parameters
     from battlab.cell import Cell
     from battlab.cli.console import make_console
     from battlab.io.results import check_output_path, write_result
     from battlab.simulation import simulate as run
 
     check_output_path(output)
-    c = Cell.load(cell)
+    c = apply_extensions(Cell.load(cell), extensions, isothermal)
     prof = _profile(profile)
     if soc0 is None:
         soc0 = prof.soc0 if prof.soc0 is not None else 1.0
-    names = list(parameters.NAMES) if sens.strip() == "all" else [s.strip() for s in sens.split(",") if s.strip()]
+    names = list(c.parameter_names()) if sens.strip() == "all" else [s.strip() for s in sens.split(",") if s.strip()]
     for name, value in (("--ambient", ambient), ("--T0", t0)):
         if value is not None and not -40.0 <= value <= 80.0:
             raise InputError(f"{name} {value} degC is outside -40..80 degC")
@@ -94,6 +100,7 @@ def simulate(
             f"({soc0:g}) and the current's sign (positive = charge)"
         )
     meta = {"cell": c.name, "cell_hash": c.hash(), "profile": str(profile), "soc0": soc0, "isothermal": isothermal}
+    meta |= {"extensions": {k: dict(v) for k, v in c.extensions.items()}} if c.extensions else {}
     meta |= {"T0_degC": t0, "v_limits": list(limits) if limits else None}
     out = write_result(res, output, ambient + 273.15, meta)
     covered = f"{res.t.size} of {prof.t.size} samples"

@@ -302,12 +302,13 @@ def fit_equilibrium(
             {**base_vals, **values},
             {k: v for k, v in cell.sources.items() if k not in values},
             cell.description,
+            cell.extensions,
         )
     except InputError as exc:
         raise InputError(f"equilibrium fit: the identified values do not make a valid cell: {exc}") from None
     new = new.renamed(f"{cell.name}-ocv", f"{cell.description} (equilibrium identified from {curve.source or 'data'})")
     src = f"identified from the OCV test {curve.source}".strip()
-    new = Cell(new.name, new.values, {**new.sources, **{k: src for k in values}}, new.description)
+    new = Cell(new.name, new.values, {**new.sources, **{k: src for k in values}}, new.description, new.extensions)
     window = new.stoichiometry_window()
     capacity = new.capacity()
     model_v = model(p)

@@ -205,7 +205,8 @@ class _Problem:
         self.fm = fm
         self.exps = list(experiments)
         self.names = tuple(names)
-        self.idx = [parameters.NAMES.index(n) for n in self.names]
+        order = getattr(fm, "names", parameters.NAMES)  # θ̄'s order: the 18, then the cell's extensions' KEY.NAME
+        self.idx = [order.index(n) for n in self.names]
         self.base = np.asarray(theta_full, float).copy()
         self.soc_span = float(soc_span)  # > 0: one start-SOC nuisance per experiment, soc0 ± soc_span
         self.n_nuis = len(self.exps) if self.soc_span > 0 else 0
@@ -355,7 +356,9 @@ def fit(
     opt = options or Options()
     fm = forward or ForwardModel(cell)
     start = start or cell
-    theta_full = np.array([start.normalised(n) for n in parameters.NAMES])
+    theta_full = start.theta_bar()
+    if len(theta_full) != len(getattr(fm, "names", theta_full)):
+        raise InputError(f"fit: the start cell's extensions {list(start.extensions)} differ from the model's")
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     n_workers = min(opt.workers or cores, len(experiments)) if fm.thread_safe else 1
     pool = ThreadPoolExecutor(n_workers) if n_workers > 1 else None

@@ -17,7 +17,7 @@ import numpy as np
 
 from battlab import parameters
 from battlab.cell import Cell
-from battlab.simulation import simulate, to_model_current
+from battlab.simulation import check_sensitivities, simulate, to_model_current
 from protocols.errors import InputError
 from protocols.profile import Profile
 
@@ -33,19 +33,21 @@ class Output:
 
 
 class ForwardModel:
-    """Simulate ``cell`` with its 18 dynamic values replaced by a θ̄ vector (in :data:`parameters.NAMES` order)."""
+    """Simulate ``cell`` with its identified values replaced by a θ̄ vector (in ``cell.parameter_names()``
+    order: the 18 of :data:`parameters.NAMES`, then its extensions' ``KEY.NAME``)."""
 
     def __init__(self, cell: Cell, *, isothermal: bool = False, v_margin: float = 0.0) -> None:
         self.cell = cell
         self.v_margin = float(v_margin)  # widen the voltage stop [V] (measured data may exceed the window)
         self.isothermal = isothermal
-        self.theta0 = np.array([cell.normalised(n) for n in parameters.NAMES])
+        self.names = cell.parameter_names()  # θ̄'s order: the 18, then the extensions' KEY.NAME
+        self.theta0 = cell.theta_bar()
         self._stepper = None
         self._native_ok: bool | None = None
 
     def cell_at(self, theta_bar: np.ndarray) -> Cell:
-        """The cell with all 18 dynamic parameters set from ``theta_bar``."""
-        return self.cell.with_normalised(**dict(zip(parameters.NAMES, map(float, theta_bar), strict=True)))
+        """The cell with all identified parameters set from ``theta_bar``."""
+        return self.cell.with_normalised(**dict(zip(self.names, map(float, theta_bar), strict=True)))
 
     def theta_of(self, cell: Cell) -> np.ndarray:
         """θ̄ of ``cell``, which must differ from the base cell in dynamic values only."""
@@ -56,12 +58,14 @@ class ForwardModel:
                 for k in fixed | (set(cell.values) - set(parameters.NAMES))
                 if repr(cell.get(k)) != repr(self.cell.get(k))
             )
+            if list(cell.extensions) != list(self.cell.extensions):
+                diff.append(f"extensions {list(cell.extensions)}")
             if diff:
                 raise InputError(
                     f"cell {cell.name!r} differs from the model's base cell {self.cell.name!r} in non-dynamic "
                     f"values {diff[:5]}: build a ForwardModel for it"
                 )
-        return np.array([cell.normalised(n) for n in parameters.NAMES])
+        return cell.theta_bar()
 
     @property
     def thread_safe(self) -> bool:
@@ -93,7 +97,7 @@ class ForwardModel:
         sensitivities: Sequence[str] = (),
     ) -> Output:
         """Voltage and dV/dθ̄ for the named parameters under ``profile`` from rest at ``soc0``."""
-        names = parameters.check_names(list(sensitivities))
+        names = check_sensitivities(self.cell, sensitivities)
         theta_bar = np.asarray(theta_bar, float)
         stepper = self._native()
         if stepper is None:
@@ -114,7 +118,7 @@ class ForwardModel:
         cell = self.cell
         m = self.v_margin
         limits = {"V_min": float(cell["V_min"]) - m, "V_max": float(cell["V_max"]) + m, "T_max": float(cell["T_max"])}
-        sel = [parameters.NAMES.index(n) for n in names]
+        sel = [self.names.index(n) for n in names]
         t = profile.t - profile.t[0]
         traj = solver.run_native(
             stepper,

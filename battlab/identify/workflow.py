@@ -73,11 +73,13 @@ def plan_groups(plan: Path) -> list[tuple[list[str], set[str]]]:
     return [(list(g.parameters), set(g.selected)) for g in design_groups(plan)]
 
 
-def stages(params: str, plan: str | Path | None, experiments: list[Any]) -> list[Any]:
-    """Stages of the cumulative fit: from the plan's design summary, or ``params`` (table9 | all | NAMES)."""
+def stages(params: str, plan: str | Path | None, experiments: list[Any], cell: Cell | None = None) -> list[Any]:
+    """Stages of the cumulative fit: from the plan's design summary, or ``params`` (table9 | all | NAMES). With
+    model extensions on in ``cell``, their parameters join the last stage (``all``: every parameter of ``cell``)."""
     from battlab import parameters
     from battlab.identify.fit import Stage
 
+    extra = cell.parameter_names()[len(parameters.NAMES) :] if cell is not None else ()
     if plan is not None:
         out = []
         used: set[str] = set()
@@ -88,11 +90,15 @@ def stages(params: str, plan: str | Path | None, experiments: list[Any]) -> list
         rest = tuple(e for e in experiments if e.name not in used)
         if out and rest:
             out[0] = Stage(out[0].names, out[0].experiments + rest)
+        if out and extra:
+            out[-1] = Stage(out[-1].names + tuple(extra), out[-1].experiments)
         return out
     p = params.strip()
     if p == "table9":
-        return [Stage(g, tuple(experiments) if k == 0 else ()) for k, g in enumerate(parameters.TABLE9_GROUPS)]
-    names = list(parameters.NAMES) if p == "all" else [s.strip() for s in p.split(",") if s.strip()]
+        groups = list(parameters.TABLE9_GROUPS)
+        groups[-1] = groups[-1] + tuple(extra)
+        return [Stage(g, tuple(experiments) if k == 0 else ()) for k, g in enumerate(groups)]
+    names = [*parameters.NAMES, *extra] if p == "all" else [s.strip() for s in p.split(",") if s.strip()]
     return [Stage(parameters.check_names(names), tuple(experiments))]
 
 
@@ -235,7 +241,7 @@ def fit(
             e for d in dyn for e in experiments_from_data(d, cell, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
         ]
         fm = ForwardModel(cell, v_margin=0.15)
-        plan_stages = stages(params, plan, exps)
+        plan_stages = stages(params, plan, exps, cell)
         base_summary, base_extra = copy.deepcopy(summary), copy.deepcopy(extra)
 
         def stage_done(k: int, res: Any) -> None:

@@ -31,7 +31,6 @@ from battlab.model.schedule import schedule, split_step
 from battlab.model.state import (
     NEWTON_FAIL,
     NEWTON_OPTIONS,
-    NP,
     Settings,
     Trajectory,
     check_end,
@@ -61,7 +60,7 @@ def _residual_functions(model: DFN) -> tuple[ca.Function, ca.Function, ca.Functi
     xn = ca.SX.sym("xn", nx)
     xp = ca.SX.sym("xp", nx)
     u = ca.SX.sym("u", 4)  # h [s], ω, I_dis [A], T_amb [K]
-    th = ca.SX.sym("th", NP)
+    th = ca.SX.sym("th", model.n_theta)
     h, w, I_dis, T_amb = u[0], u[1], u[2], u[3]
     eq = model.equations(y, I_dis, T_amb, th)
     gamma = (1 + w) / (1 + 2 * w)
@@ -103,7 +102,7 @@ def _compile(cell: Cell, cell_hash: str, mesh: Mesh, isothermal: bool, ns: int, 
     XN = ca.MX.sym("XN", nx)
     XP = ca.MX.sym("XP", nx)
     U = ca.MX.sym("U", 4)
-    TH = ca.MX.sym("TH", NP)
+    TH = ca.MX.sym("TH", model.n_theta)
     rf = ca.rootfinder("rf", "newton", res, NEWTON_OPTIONS)
     y_new = rf(Y, XN, XP, U, TH)
     # history: a zero-length step (padding) leaves states and history unchanged
@@ -113,14 +112,14 @@ def _compile(cell: Cell, cell_hash: str, mesh: Mesh, isothermal: bool, ns: int, 
     resid = ca.norm_inf(res(y_new, XN, XP, U, TH))  # Newton failure shows here (error_on_fail is off)
     outs = [y_new, xp_new]
     if ns:
-        E = ca.MX.sym("E", NP, ns)  # selects the parameters to differentiate against
+        E = ca.MX.sym("E", model.n_theta, ns)  # selects the parameters to differentiate against
         SN = ca.MX.sym("SN", nx, ns)
         SP = ca.MX.sym("SP", nx, ns)
         ysym = ca.SX.sym("y", ny)
         xns = ca.SX.sym("xn", nx)
         xps = ca.SX.sym("xp", nx)
         us = ca.SX.sym("u", 4)
-        ths = ca.SX.sym("th", NP)
+        ths = ca.SX.sym("th", model.n_theta)
         Rs = res(ysym, xns, xps, us, ths)
         jac = ca.Function(
             "stepjac",
@@ -149,7 +148,7 @@ def _compile(cell: Cell, cell_hash: str, mesh: Mesh, isothermal: bool, ns: int, 
     o = outf(z_sol, X, UA, TH)
     alg = ca.Function("alg", [Z, X, UA, TH], [z_sol])
     if ns:
-        zs, xs, uas, ths2 = ca.SX.sym("z", nz), ca.SX.sym("x", nx), ca.SX.sym("ua", 2), ca.SX.sym("th", NP)
+        zs, xs, uas, ths2 = ca.SX.sym("z", nz), ca.SX.sym("x", nx), ca.SX.sym("ua", 2), ca.SX.sym("th", model.n_theta)
         gs = galg(zs, xs, uas, ths2)
         os_ = outf(zs, xs, uas, ths2)
         ojac = ca.Function(
@@ -165,7 +164,7 @@ def _compile(cell: Cell, cell_hash: str, mesh: Mesh, isothermal: bool, ns: int, 
             ],
         )
         SX_ = ca.MX.sym("SX", nx, ns)
-        E2 = ca.MX.sym("E", NP, ns)
+        E2 = ca.MX.sym("E", model.n_theta, ns)
         gz, gx, gth, oz, ox, oth = ojac(z_sol, X, UA, TH)
         Sz = -ca.solve(gz, gx @ SX_ + gth @ E2, "csparse")
         So = oz @ Sz + ox @ SX_ + oth @ E2  # (5, ns): V, T1, T2, sto_min, sto_max

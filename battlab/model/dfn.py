@@ -24,13 +24,14 @@ same compiled functions serve any parameter values and give derivatives w.r.t. �
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
 
 from battlab import parameters
 from battlab.cell import R_GAS, Cell, F
+from battlab.model.extensions import ModelOptions
 from battlab.model.mesh import Mesh
 
 C_SCALE = 1000.0  #: electrolyte concentration scale [mol m⁻³]: the unknown is c_e / C_SCALE
@@ -41,6 +42,8 @@ class Layout:
     """Where each variable sits in the unknown vector y = [x (differential) | z (algebraic)]."""
 
     mesh: Mesh
+    extra: tuple[tuple[str, int], ...] = ()  #: extensions' differential states (key, count), after T₂
+    extra_z: tuple[tuple[str, int], ...] = ()  #: extensions' algebraic states (key, count), after i⁺
 
     @property
     def n_sn(self) -> int:
@@ -52,14 +55,14 @@ class Layout:
 
     @property
     def nx(self) -> int:
-        """Differential states: θ⁻ shells, θ⁺ shells, c_e, T₁ − T_ref, T₂ − T_ref."""
-        return self.n_sn + self.n_sp + self.mesh.n_x + 2
+        """Differential states: θ⁻ shells, θ⁺ shells, c_e, T₁ − T_ref, T₂ − T_ref, the extensions' states."""
+        return self.n_sn + self.n_sp + self.mesh.n_x + 2 + sum(n for _, n in self.extra)
 
     @property
     def nz(self) -> int:
-        """Algebraic states: φ_s⁻, φ_s⁺, φ_e, i⁻, i⁺."""
+        """Algebraic states: φ_s⁻, φ_s⁺, φ_e, i⁻, i⁺, the extensions' algebraic states."""
         m = self.mesh
-        return 2 * (m.n_n + m.n_p) + m.n_x
+        return 2 * (m.n_n + m.n_p) + m.n_x + sum(n for _, n in self.extra_z)
 
     @property
     def ny(self) -> int:
@@ -75,11 +78,13 @@ class Layout:
             ("ce", m.n_x),
             ("T1", 1),
             ("T2", 1),
+            *self.extra,
             ("phis_n", m.n_n),
             ("phis_p", m.n_p),
             ("phie", m.n_x),
             ("i_n", m.n_n),
             ("i_p", m.n_p),
+            *((f"{k}.z", n) for k, n in self.extra_z),
         ):
             out[name] = slice(pos, pos + n)
             pos += n
@@ -96,6 +101,67 @@ def _shape(cell: Cell, key: str, x: ca.SX) -> ca.SX | float:
     return 1.0 if f is None else cell.fn(key, x, backend="casadi")
 
 
+@dataclass
+class Context:
+    """One evaluation of the residual: the state's variables, the physical parameters and what the blocks of
+    :meth:`DFN.equations` compute, in the order they run (solid diffusion, electrolyte, charge, kinetics, voltage,
+    thermal). Model convention: current positive = discharge."""
+
+    y: ca.SX
+    I_dis: ca.SX  # the current the cell carries [A] (the logged one unless an extension says otherwise)
+    T_amb: ca.SX  # ambient temperature [K]
+    p: dict[str, ca.SX]  # physical values of the identified parameters
+    sl: dict[str, slice]
+    i_app: ca.SX  # I/A [A m⁻²]
+    T1: ca.SX  # core temperature [K]
+    T2: ca.SX  # surface temperature [K]
+    ce: ca.SX  # electrolyte concentration per x cell [mol m⁻³]
+    phie: ca.SX  # electrolyte potential per x cell [V]
+    i_int: dict[str, ca.SX]  # interfacial current density per electrode cell [A m⁻²]
+    L: dict[str, float]  # region thicknesses [m]
+    nreg: dict[str, int]  # cells per region
+    dx: np.ndarray  # cell widths [m]
+    eps_x: ca.SX  # electrolyte volume fraction per x cell
+    tort_x: ca.SX  # transport efficiency per x cell
+    T_ref: float = 298.15  # reference temperature [K]
+    cell: Cell | None = None
+    zero: ca.SX = field(default_factory=lambda: ca.SX(1, 1))
+    a_s: dict[str, ca.SX] = field(default_factory=dict)  # specific surface area [m⁻¹]
+    f_s: dict[str, ca.SX] = field(default_factory=dict)  # dθ/dt of the shells
+    surf: dict[str, ca.SX] = field(default_factory=dict)  # surface stoichiometry per x cell
+    bulk: dict[str, ca.SX] = field(default_factory=dict)  # mean stoichiometry per x cell
+    side: dict[str, ca.SX] = field(default_factory=dict)  # side-reaction current per volume [A m⁻³] (+ = anodic)
+    capacitive: dict[str, ca.SX] = field(default_factory=dict)  # double-layer current per volume [A m⁻³]
+    U: dict[str, ca.SX] = field(default_factory=dict)  # OCP per electrode cell in the overpotential [V]
+    src: ca.SX | None = None  # a_s i per x cell [A m⁻³]
+    dce: ca.SX | None = None
+    g_e: ca.SX | None = None
+    g_s: dict[str, ca.SX] = field(default_factory=dict)
+    phis_L: ca.SX | None = None  # φ_s at the positive collector [V]
+    g_bv: dict[str, ca.SX] = field(default_factory=dict)
+    U_bulk: ca.SX | float = 0.0  # U⁺ − U⁻ at the electrodes' mean bulk stoichiometries [V]
+    dUdT_bulk: ca.SX | float = 0.0  # its temperature derivative [V K⁻¹]
+    V: ca.SX | None = None  # terminal voltage [V]
+    Q: ca.SX | None = None  # heat [W]
+    dT1: ca.SX | None = None
+    dT2: ca.SX | None = None
+
+
+@dataclass
+class _PartialContext:
+    """What a hook may read before the context exists (the parameters: :meth:`Extension.cell_current`)."""
+
+    p: dict[str, ca.SX]
+
+
+def a_s_i(c: Context, e: str) -> ca.SX:
+    """a_s i of electrode e [A m⁻³]: the volumetric reaction current (with the side reactions' when there are)."""
+    out = c.a_s[e] * c.i_int[e]
+    if e in c.side:
+        out = out + c.side[e]
+    return out
+
+
 class DFN:
     """Builds the symbolic residual of one cell on one mesh."""
 
@@ -103,7 +169,10 @@ class DFN:
         mesh = mesh or Mesh()
         self.cell = cell
         self.mesh = mesh
-        self.layout = Layout(mesh)
+        self.options = ModelOptions.of(cell, isothermal)  # the extensions come with the cell
+        extra = tuple((e.key, e.n_states(mesh)) for e in self.options.extensions if e.n_states(mesh))
+        extra_z = tuple((e.key, e.n_algebraic(mesh)) for e in self.options.extensions if e.n_algebraic(mesh))
+        self.layout = Layout(mesh, extra, extra_z)
         self.isothermal = isothermal
         self.T_ref = float(cell["T_ref"])
         self.i_ref = float(cell["Q_nom"]) / float(cell["A"])  # 1C current density [A m⁻²]
@@ -112,9 +181,21 @@ class DFN:
         self.vol = (self.xi_f[1:] ** 3 - self.xi_f[:-1] ** 3) / 3.0  # shell volumes / R³
 
     # --- parameters -----------------------------------------------------------------------------------
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of θ̄'s entries: the 18, then the extensions' ``KEY.NAME``."""
+        return self.options.parameter_names
+
+    @property
+    def n_theta(self) -> int:
+        return len(self.options.parameter_names)
+
     def physical(self, theta_bar: ca.SX) -> dict[str, ca.SX]:
-        """θ from θ̄ (eq. 1) as symbolic expressions."""
+        """θ from θ̄ (eq. 1) as symbolic expressions, keyed by :attr:`parameter_names`."""
         out = {}
+        for k, name in enumerate(self.options.parameter_names[len(parameters.DYNAMIC) :], len(parameters.DYNAMIC)):
+            spec_e = parameters.EXTENSION_SPECS[name]
+            out[name] = spec_e.lower + theta_bar[k] * (spec_e.upper - spec_e.lower)
         for k, spec in enumerate(parameters.DYNAMIC):
             tb = theta_bar[k]
             if spec.scale is parameters.Scale.LOG:
@@ -127,17 +208,43 @@ class DFN:
     def equations(self, y: ca.SX, I_dis: ca.SX, T_amb: ca.SX, theta_bar: ca.SX) -> dict[str, ca.SX]:
         """f (time derivatives of x), g (algebraic residuals, scaled), V and diagnostics at state y.
 
-        I_dis: cell current [A], positive = discharge. T_amb: ambient temperature [K].
+        I_dis: cell current [A], positive = discharge. T_amb: ambient temperature [K]. The physics blocks below
+        (as PyBaMM's submodels) each read the shared quantities of :class:`Context` and add their own.
         """
+        c = self.context(y, I_dis, T_amb, theta_bar)
+        self.solid_diffusion(c)
+        for ext in self.options.extensions:
+            for e in ("n", "p"):
+                side = ext.side_current(c, e)
+                if side is not None:
+                    c.side[e] = c.side[e] + side if e in c.side else side
+        self.electrolyte(c)
+        self.charge(c)
+        self.kinetics(c)
+        self.voltage(c)
+        self.thermal(c)
+        rates = [e.rates(c, c.y[c.sl[e.key]]) for e in self.options.extensions if e.key in c.sl]
+        f = ca.vertcat(c.f_s["n"], c.f_s["p"], c.dce, c.dT1, c.dT2, *rates)
+        alg = [e.algebraic(c, c.y[c.sl[f"{e.key}.z"]]) for e in self.options.extensions if f"{e.key}.z" in c.sl]
+        g = ca.vertcat(c.g_s["n"], c.g_s["p"], c.g_e, c.g_bv["n"], c.g_bv["p"], *alg)
+        sto_surf = ca.vertcat(c.surf["n"], c.surf["p"])
+        return {
+            "f": f,
+            "g": g,
+            "V": c.V,
+            "T1": c.T1,
+            "T2": c.T2,
+            "Q": c.Q,
+            "surf_n": c.surf["n"],
+            "surf_p": c.surf["p"],
+            "sto_surf": sto_surf,
+            "ce": c.ce,
+        }
+
+    def context(self, y: ca.SX, I_dis: ca.SX, T_amb: ca.SX, theta_bar: ca.SX) -> Context:
+        """The state split into its variables, the parameters and the geometry every block shares."""
         cell, m, sl = self.cell, self.mesh, self.layout.slices()
         p = self.physical(theta_bar)
-        A = float(cell["A"])
-        i_app = I_dis / A
-        T1 = self.T_ref + y[sl["T1"]]
-        T2 = self.T_ref + y[sl["T2"]]
-        ce = y[sl["ce"]] * C_SCALE
-        nr = m.n_r
-
         L = {"n": float(cell["L_n"]), "s": float(cell["L_s"]), "p": float(cell["L_p"])}
         nreg = {"n": m.n_n, "s": m.n_s, "p": m.n_p}
         dx = np.concatenate([np.full(nreg[r], L[r] / nreg[r]) for r in ("n", "s", "p")])
@@ -149,33 +256,60 @@ class DFN:
                 return float(cell[key])
             return eps[r] ** float(cell[f"brugg_{r}"])
 
-        eps_x = ca.vertcat(*[ca.repmat(eps[r], nreg[r], 1) for r in ("n", "s", "p")])
-        tort_x = ca.vertcat(*[ca.repmat(transport(r), nreg[r], 1) for r in ("n", "s", "p")])
+        I_cell = I_dis
+        for ext in self.options.extensions:
+            I_cell = ext.cell_current(_PartialContext(p), I_cell)
+        return Context(
+            y=y,
+            I_dis=I_cell,
+            T_amb=T_amb,
+            p=p,
+            sl=sl,
+            i_app=I_cell / float(cell["A"]),
+            T1=self.T_ref + y[sl["T1"]],
+            T2=self.T_ref + y[sl["T2"]],
+            ce=y[sl["ce"]] * C_SCALE,
+            phie=y[sl["phie"]],
+            i_int={e: y[sl[f"i_{e}"]] for e in ("n", "p")},
+            L=L,
+            nreg=nreg,
+            dx=dx,
+            eps_x=ca.vertcat(*[ca.repmat(eps[r], nreg[r], 1) for r in ("n", "s", "p")]),
+            tort_x=ca.vertcat(*[ca.repmat(transport(r), nreg[r], 1) for r in ("n", "s", "p")]),
+            T_ref=self.T_ref,
+            cell=cell,
+        )
 
-        # --- particles (A1, A2, A20) ---
-        f_s: dict[str, ca.SX] = {}
-        surf: dict[str, ca.SX] = {}
-        bulk: dict[str, ca.SX] = {}
-        i_int: dict[str, ca.SX] = {}
-        a_s: dict[str, ca.SX] = {}
+    def activation(self, c: Context, key: str) -> ca.SX | float:
+        """The activation energy ``key`` of B5 [J/mol]: the cell's, as the extensions change it."""
+        E: ca.SX | float = float(self.cell[key])
+        for ext in self.options.extensions:
+            E = ext.activation(c, key, E)
+        return E
+
+    def solid_diffusion(self, c: Context) -> None:
+        """A1, A2 (and the surface value of A20): shells in ξ = r/R_s per x cell; sets f_s, surf, bulk, a_s."""
+        cell, m, p, y, sl = self.cell, self.mesh, c.p, c.y, c.sl
+        nr = m.n_r
         for e in ("n", "p"):
-            nxe = nreg[e]
+            nxe = c.nreg[e]
             sto = ca.reshape(y[sl["s" + e]], nr, nxe)  # column per x cell, row per shell
             R = p[f"R_s_{e}"]
-            D = p[f"D_s_{e}"] * _arrhenius(float(cell[f"E_D_s_{e}"]), self.T_ref, T1)
+            D = p[f"D_s_{e}"] * _arrhenius(self.activation(c, f"E_D_s_{e}"), self.T_ref, c.T1)
             cmax = float(cell[f"c_max_{e}"])
-            ii = y[sl[f"i_{e}"]]
-            i_int[e] = ii
-            a_s[e] = 3.0 * float(cell[f"eps_s_{e}"]) / R
+            ii = c.i_int[e]
+            c.a_s[e] = 3.0 * float(cell[f"eps_s_{e}"]) / R
+            for ext in self.options.extensions:
+                c.a_s[e] = ext.surface_area(c, e, c.a_s[e])
             dxi = np.diff(self.xi_c)
             rows = []
             surf_e = []
             bulk_e = []
-            for c in range(nxe):
-                s = sto[:, c]
+            for k in range(nxe):
+                s = sto[:, k]
                 s_face = 0.5 * (s[1:] + s[:-1])
                 flux = (self.xi_f[1:-1] ** 2) * _shape(cell, f"D_s_{e}_shape", s_face) * (s[1:] - s[:-1]) / dxi
-                flux_out = -R * ii[c] / (F * cmax * D)  # ξ² ∂ξθ at ξ = 1, from −D c_max/R ∂ξθ = i/F
+                flux_out = -R * ii[k] / (F * cmax * D)  # ξ² ∂ξθ at ξ = 1, from −D c_max/R ∂ξθ = i/F
                 shape_surf = _shape(cell, f"D_s_{e}_shape", s[-1])
                 flux_full = ca.vertcat(0.0, flux, flux_out)
                 dsdt = D / R**2 * (flux_full[1:] - flux_full[:-1]) / self.vol
@@ -186,102 +320,129 @@ class DFN:
                 c2 = (s[-1] - s[-2] - g1 * (d1 - d2)) / (d1**2 - d2**2)
                 surf_e.append(s[-1] - g1 * d1 - c2 * d1**2)
                 bulk_e.append(ca.dot(s, self.vol) / self.vol.sum())
-            f_s[e] = ca.vertcat(*rows)
-            surf[e] = ca.vertcat(*surf_e)
-            bulk[e] = ca.vertcat(*bulk_e)
+            c.f_s[e] = ca.vertcat(*rows)
+            c.surf[e] = ca.vertcat(*surf_e)
+            c.bulk[e] = ca.vertcat(*bulk_e)
 
-        # --- electrolyte transport (A3–A8, A11, A13–A16) ---
+    def electrolyte(self, c: Context) -> None:
+        """A3–A8: diffusion and the reaction source in the electrolyte, zero flux at the collectors, two-point
+        fluxes with harmonic means across cells and regions; sets dce and the volumetric source src = a_s i."""
+        cell, p, m = self.cell, c.p, self.mesh
         tp = p["t_plus"]
-        De = p["D_e_scale"] * cell.fn("D_e", ce, backend="casadi") * _arrhenius(float(cell["E_D_e"]), self.T_ref, T1)
-        kap = (
-            p["kappa_scale"]
-            * cell.fn("kappa", ce, backend="casadi")
-            * _arrhenius(float(cell["E_kappa"]), self.T_ref, T1)
+        De = (
+            p["D_e_scale"]
+            * cell.fn("D_e", c.ce, backend="casadi")
+            * _arrhenius(self.activation(c, "E_D_e"), self.T_ref, c.T1)
         )
-        tdf = 1.0 + p["dlnf_scale"] * cell.fn("dlnf", ce, backend="casadi")
-        De_eff = De * tort_x
-        kap_eff = kap * tort_x
-        half = dx / 2.0
+        for ext in self.options.extensions:
+            De = ext.electrolyte_property(c, "D_e", De)
+        De_eff = De * c.tort_x
+        half = c.dx / 2.0
         # two-point face coefficients: 1 / (Δx_i/(2k_i) + Δx_{i+1}/(2k_{i+1}))
         De_f = 1.0 / (half[:-1] / De_eff[:-1] + half[1:] / De_eff[1:])
+        N_f = -De_f * (c.ce[1:] - c.ce[:-1])  # diffusive flux [mol m⁻² s⁻¹]
+        N_full = ca.vertcat(c.zero, N_f, c.zero)
+        c.src = ca.vertcat(a_s_i(c, "n"), ca.SX.zeros(m.n_s), a_s_i(c, "p"))  # a i [A m⁻³]
+        c.dce = (-(N_full[1:] - N_full[:-1]) / c.dx + (1.0 - tp) * c.src / F) / c.eps_x / C_SCALE
+
+    def charge(self, c: Context) -> None:
+        """A9–A16: charge conservation in the electrolyte (with the concentration overpotential) and in the
+        solids; φ_s(0) = 0 is the potential reference, I/A enters at x = L; sets g_e, g_s and φ_s(L)."""
+        cell, p = self.cell, c.p
+        tp = p["t_plus"]
+        kap = (
+            p["kappa_scale"]
+            * cell.fn("kappa", c.ce, backend="casadi")
+            * _arrhenius(self.activation(c, "E_kappa"), self.T_ref, c.T1)
+        )
+        dlnf = p["dlnf_scale"] * cell.fn("dlnf", c.ce, backend="casadi")
+        for ext in self.options.extensions:
+            kap = ext.electrolyte_property(c, "kappa", kap)
+            dlnf = ext.electrolyte_property(c, "dlnf", dlnf)
+        tdf = 1.0 + dlnf
+        kap_eff = kap * c.tort_x
+        half = c.dx / 2.0
         kap_f = 1.0 / (half[:-1] / kap_eff[:-1] + half[1:] / kap_eff[1:])
         tdf_f = 0.5 * (tdf[:-1] + tdf[1:])
-        N_f = -De_f * (ce[1:] - ce[:-1])  # diffusive flux [mol m⁻² s⁻¹]
-        phie = y[sl["phie"]]
-        dlnc = ca.log(ce[1:]) - ca.log(ce[:-1])
-        ie_f = -kap_f * ((phie[1:] - phie[:-1]) - 2.0 * R_GAS * T1 / F * (1.0 - tp) * tdf_f * dlnc)
-        zero = ca.SX(1, 1)
-        N_full = ca.vertcat(zero, N_f, zero)
-        ie_full = ca.vertcat(zero, ie_f, zero)
-        src = ca.vertcat(a_s["n"] * i_int["n"], ca.SX.zeros(m.n_s), a_s["p"] * i_int["p"])  # a i [A m⁻³]
-        dce = (-(N_full[1:] - N_full[:-1]) / dx + (1.0 - tp) * src / F) / eps_x / C_SCALE
-        g_e = ((ie_full[1:] - ie_full[:-1]) - src * dx) / self.i_ref
-
-        # --- solid charge (A9, A10) ---
-        g_s = {}
-        phis_bc = {}
+        phie = c.phie
+        dlnc = ca.log(c.ce[1:]) - ca.log(c.ce[:-1])
+        ie_f = -kap_f * ((phie[1:] - phie[:-1]) - 2.0 * R_GAS * c.T1 / F * (1.0 - tp) * tdf_f * dlnc)
+        ie_full = ca.vertcat(c.zero, ie_f, c.zero)
+        src = c.src
+        for ext in self.options.extensions:
+            for e in ("n", "p"):
+                cap = ext.capacitive_current(c, e)
+                if cap is not None:
+                    c.capacitive[e] = c.capacitive[e] + cap if e in c.capacitive else cap
+        if c.capacitive:  # charges the double layer: in the charge balance, not in the electrolyte's lithium
+            zn, zp = ca.SX.zeros(c.nreg["n"]), ca.SX.zeros(c.nreg["p"])
+            src = src + ca.vertcat(c.capacitive.get("n", zn), ca.SX.zeros(c.nreg["s"]), c.capacitive.get("p", zp))
+        c.g_e = ((ie_full[1:] - ie_full[:-1]) - src * c.dx) / self.i_ref
         for e in ("n", "p"):
-            phis = y[sl[f"phis_{e}"]]
-            h = L[e] / nreg[e]
+            phis = c.y[c.sl[f"phis_{e}"]]
+            h = c.L[e] / c.nreg[e]
             sig = p[f"sigma_{e}"] * float(cell[f"eps_s_{e}"]) ** float(cell[f"brugg_s_{e}"])
             is_f = -sig * (phis[1:] - phis[:-1]) / h
             if e == "n":
                 left = -sig * (phis[0] - 0.0) / (h / 2.0)  # φ_s(0) = 0: the potential reference
-                right = zero
+                right = c.zero
             else:
-                left = zero
-                right = i_app
-                phis_bc["p"] = phis[-1] - (h / 2.0) * i_app / sig  # φ_s(L) from the collector's current
+                left = c.zero
+                right = c.i_app
+                c.phis_L = phis[-1] - (h / 2.0) * c.i_app / sig  # φ_s(L) from the collector's current
             is_full = ca.vertcat(left, is_f, right)
-            g_s[e] = ((is_full[1:] - is_full[:-1]) + a_s[e] * i_int[e] * h) / self.i_ref
+            reaction = a_s_i(c, e) + c.capacitive[e] if e in c.capacitive else a_s_i(c, e)
+            c.g_s[e] = ((is_full[1:] - is_full[:-1]) + reaction * h) / self.i_ref
 
-        # --- kinetics (A17–A19) ---
-        g_bv = {}
-        U_bulk = 0.0
-        dUdT_bulk = 0.0
+    def kinetics(self, c: Context) -> None:
+        """A17–A20: Butler–Volmer with α_a = α_c = 0.5 and the film resistance; sets g_bv, and the potentials at
+        each electrode's mean bulk stoichiometry for the heat (B3–B4): U_bulk, dUdT_bulk."""
+        cell, m, p = self.cell, self.mesh, c.p
         off = {"n": 0, "p": m.n_n + m.n_s}
         for e in ("n", "p"):
+            nxe = c.nreg[e]
             cmax = float(cell[f"c_max_{e}"])
-            k = p[f"k_{e}"] * _arrhenius(float(cell[f"E_k_{e}"]), self.T_ref, T1)
-            ce_e = ce[off[e] : off[e] + nreg[e]]
-            css = surf[e] * cmax
+            k = p[f"k_{e}"] * _arrhenius(self.activation(c, f"E_k_{e}"), self.T_ref, c.T1)
+            ce_e = c.ce[off[e] : off[e] + nxe]
+            css = c.surf[e] * cmax
             i0 = k * ca.sqrt(ca.fmax(css, 1e-6) * ca.fmax(cmax - css, 1e-6) * ca.fmax(ce_e, 1e-6))
-            U = cell.fn(f"U_{e}", surf[e], backend="casadi")
-            eta = y[sl[f"phis_{e}"]] - phie[off[e] : off[e] + nreg[e]] - U - p[f"R_f_{e}"] * i_int[e]
-            g_bv[e] = (i_int[e] - 2.0 * i0 * ca.sinh(F * eta / (2.0 * R_GAS * T1))) / self.i_ref
+            U = cell.fn(f"U_{e}", c.surf[e], backend="casadi")
+            for ext in self.options.extensions:
+                U = ext.open_circuit(c, e, U)
+            eta = c.y[c.sl[f"phis_{e}"]] - c.phie[off[e] : off[e] + nxe] - U - p[f"R_f_{e}"] * c.i_int[e]
+            c.g_bv[e] = (c.i_int[e] - 2.0 * i0 * ca.sinh(F * eta / (2.0 * R_GAS * c.T1))) / self.i_ref
+            c.U[e] = U
             # B3-B4: the potentials at the electrode's mean bulk stoichiometry (one evaluation per electrode)
             sign = 1.0 if e == "p" else -1.0
-            mean_bulk = ca.sum1(bulk[e]) / nreg[e]
-            U_bulk = U_bulk + sign * cell.fn(f"U_{e}", mean_bulk, backend="casadi")
-            dUdT_bulk = dUdT_bulk + sign * cell.fn(f"dUdT_{e}", mean_bulk, backend="casadi")
+            mean_bulk = ca.sum1(c.bulk[e]) / nxe
+            U_mean = cell.fn(f"U_{e}", mean_bulk, backend="casadi")
+            for ext in self.options.extensions:
+                U_mean = ext.bulk_open_circuit(c, e, U_mean, mean_bulk)
+            c.U_bulk = c.U_bulk + sign * U_mean
+            c.dUdT_bulk = c.dUdT_bulk + sign * cell.fn(f"dUdT_{e}", mean_bulk, backend="casadi")
 
-        V = phis_bc["p"] - float(cell["R_c"]) * I_dis
+    def voltage(self, c: Context) -> None:
+        """A21: V = φ_s(L) − φ_s(0) − R_c I (φ_s(0) = 0)."""
+        c.V = c.phis_L - float(self.cell["R_c"]) * c.I_dis
+        for ext in self.options.extensions:
+            c.V = ext.voltage(c, c.V)
 
-        # --- thermal (B1–B3) ---
-        Q = I_dis * (U_bulk - V) - I_dis * T1 * dUdT_bulk
+    def thermal(self, c: Context) -> None:
+        """B1–B3: two-node lumped thermal model with Bernardi's heat Q = I (U_bulk − V) − I T₁ ∂U_bulk/∂T (the
+        Arrhenius law B5 enters the blocks above); sets Q, dT1, dT2 (zero when isothermal)."""
+        cell = self.cell
+        th: dict[str, ca.SX | float] = {"dUdT": c.dUdT_bulk}
+        th |= {k: float(cell[k]) for k in ("C1", "C2", "h12", "h2a")}
+        for ext in self.options.extensions:
+            th = ext.heat(c, th)
+        c.Q = c.I_dis * (c.U_bulk - c.V) - c.I_dis * c.T1 * th["dUdT"]
         if self.isothermal:
-            dT1 = ca.SX(0.0)
-            dT2 = ca.SX(0.0)
+            c.dT1 = ca.SX(0.0)
+            c.dT2 = ca.SX(0.0)
         else:
-            h12, h2a = float(cell["h12"]), float(cell["h2a"])
-            dT1 = (h12 * (T2 - T1) + Q) / float(cell["C1"])
-            dT2 = (h12 * (T1 - T2) + h2a * (T_amb - T2)) / float(cell["C2"])
-
-        f = ca.vertcat(f_s["n"], f_s["p"], dce, dT1, dT2)
-        g = ca.vertcat(g_s["n"], g_s["p"], g_e, g_bv["n"], g_bv["p"])
-        sto_surf = ca.vertcat(surf["n"], surf["p"])
-        return {
-            "f": f,
-            "g": g,
-            "V": V,
-            "T1": T1,
-            "T2": T2,
-            "Q": Q,
-            "surf_n": surf["n"],
-            "surf_p": surf["p"],
-            "sto_surf": sto_surf,
-            "ce": ce,
-        }
+            h12, h2a = th["h12"], th["h2a"]
+            c.dT1 = (h12 * (c.T2 - c.T1) + c.Q) / th["C1"]
+            c.dT2 = (h12 * (c.T1 - c.T2) + h2a * (c.T_amb - c.T2)) / th["C2"]
 
     def lithium(self, y: np.ndarray, theta_bar: np.ndarray) -> float:
         """Moles of lithium in solid + electrolyte at state y (for conservation checks)."""

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from battlab import parameters
 from battlab.cell import Cell
 from battlab.model import solver
 from battlab.model.mesh import Mesh
@@ -35,7 +34,7 @@ class LiveCell:
         self.cell = cell
         self.settings = settings or solver.Settings()
         self._stepper = solver.native_stepper(cell, mesh or Mesh(), isothermal)
-        self._theta = np.array([cell.normalised(n) for n in parameters.NAMES])
+        self._theta = cell.theta_bar()
         self.reset(soc0, T0)
 
     def reset(self, soc0: float, T0: float) -> None:

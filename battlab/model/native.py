@@ -1,7 +1,7 @@
 """The compiled time stepper: CasADi generates C for the step residual and its Jacobians, ``stepper.c`` runs
 Newton, a static-pivot sparse LU and the sensitivity solves, and gcc turns both into one shared library.
 
-Build once per (cell, mesh, thermal option), cached on disk under ``$BATTLAB_CACHE`` (default
+Build once per (cell, mesh, option set: thermal option and extensions), cached on disk under ``$BATTLAB_CACHE`` (default
 ``~/.cache/battlab``) by a hash of the generated source, so a fit that changes θ̄ never recompiles (θ̄ is an input).
 
 The LU program: the pivot order comes from SuperLU (COLAMD columns, partial pivoting) on the Jacobian at a
@@ -90,7 +90,7 @@ def _functions(model: DFN) -> tuple[list[ca.Function], ca.Sparsity, ca.Sparsity]
     xn = ca.SX.sym("xn", nx)
     xp = ca.SX.sym("xp", nx)
     u = ca.SX.sym("u", 4)
-    th = ca.SX.sym("th", 18)
+    th = ca.SX.sym("th", model.n_theta)
     h, w = u[0], u[1]
     eq = model.equations(y, u[2], u[3], th)
     gamma = (1 + w) / (1 + 2 * w)
@@ -300,7 +300,7 @@ class NativeStepper:
         problem = _Problem(
             lay.ny,
             lay.nx,
-            18,
+            self.model.n_theta,
             program.nslot,
             p(a["prow"]),
             p(a["pcol"]),

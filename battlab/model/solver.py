@@ -64,10 +64,11 @@ _NATIVE: dict[tuple, object] = {}
 
 
 def native_stepper(cell: Cell, mesh: Mesh, isothermal: bool):  # -> NativeStepper
-    """The compiled stepper of (cell, mesh, thermal option), built once per process (and cached on disk)."""
+    """The compiled stepper of (cell, mesh, option set), built once per process (and cached on disk)."""
+    from battlab.model.extensions import ModelOptions
     from battlab.model.native import NativeStepper
 
-    key = (cell.static_hash(), mesh, isothermal)
+    key = (cell.static_hash(), mesh, ModelOptions.of(cell, isothermal))
     if key not in _NATIVE:
         _NATIVE[key] = NativeStepper(DFN(cell, mesh, isothermal=isothermal))
     return _NATIVE[key]

@@ -93,6 +93,9 @@ def initial_state(model: DFN, soc0: float, theta_bar: np.ndarray, T0: float) -> 
     x[sl["ce"]] = ce0 / C_SCALE
     x[sl["T1"]] = T0 - model.T_ref
     x[sl["T2"]] = T0 - model.T_ref
+    for ext in model.options.extensions:
+        if ext.key in sl:
+            x[sl[ext.key]] = ext.initial_states(model, soc0)
     return x
 
 

@@ -12,6 +12,8 @@ EXT = "battlab: "
 EXT_VERSION = EXT + "extension version"
 #: Marker entry: 1 when the cell's stoichiometry window follows from n_Li and the voltage limits.
 EXT_WINDOW = EXT + "stoichiometry window from n_Li"
+#: Prefix of a model extension's parameter: "battlab: model extension KEY.NAME" (the extension is on when present)
+EXT_MODEL = EXT + "model extension "
 #: Functions PyBaMM's BPX reader can execute (its preamble imports exp, tanh, cosh only).
 PYBAMM_FUNCTIONS = frozenset({"exp", "tanh", "cosh"})
 #: Heat capacity fraction kept in the surface node, and core-surface relaxation time [s].

@@ -19,6 +19,7 @@ from battlab.io.bpx.common import (
     CORE_SURFACE_TAU,
     EXT,
     EXT_KEYS,
+    EXT_MODEL,
     EXT_VERSION,
     EXT_WINDOW,
     RHO_CP_DEFAULT,
@@ -199,10 +200,15 @@ def read_bpx(path: str | Path) -> Cell:
                 except InputError as exc:
                     raise InputError(f"{path}: BPX field Parameterisation.User-defined.{EXT + key}: {exc}") from None
                 sources[key] = src + " (battlab extension)"
+    extensions: dict[str, dict[str, float]] = {}
+    for entry, x in user.items():
+        if entry.startswith(EXT_MODEL):
+            key, _, name = entry.removeprefix(EXT_MODEL).partition(".")
+            extensions.setdefault(key, {})[name] = _user_value(x)
     header = model.header
     desc = " ".join(t for t in (header.title, header.description) if t)
     try:
-        return Cell(path.stem, values, sources, desc)
+        return Cell(path.stem, values, sources, desc, extensions)
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
 

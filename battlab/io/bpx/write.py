@@ -19,6 +19,7 @@ from battlab.io.bpx.common import (
     CP_NOMINAL,
     EXT,
     EXT_KEYS,
+    EXT_MODEL,
     EXT_VERSION,
     EXT_WINDOW,
     PYBAMM_FUNCTIONS,
@@ -84,6 +85,9 @@ def write_bpx(cell: Cell, path: str | Path, **extra: Any) -> Path:
         if key in v:
             val = v[key]
             user[EXT + key] = _bpx_text(val) if isinstance(val, Expr) else to_json(val)
+    for key, vals in cell.extensions.items():
+        for name, x in vals.items():
+            user[f"{EXT_MODEL}{key}.{name}"] = float(x)
     descriptions: list[str] = []
     for name, value in extra.items():
         _flatten(name, value, user, descriptions)

@@ -224,3 +224,26 @@ def test_an_ocv_test_alone_is_a_complete_equilibrium_fit(tmp_path, ocv_csv) -> N
         [],
     )
     assert summary["converged"] is True and set(summary["parameters"]) == {"eps_s_n", "eps_s_p", "n_Li"}
+
+
+def test_fit_with_an_extension_keeps_it_in_the_cell(tmp_path, virtual_csv) -> None:
+    """--extension switches a catalog extension on in the start cell; its KEY.NAME is fitted like the 18 and the
+    fitted BPX cell carries it (from the nominal start the series resistance absorbs part of the other parameters'
+    mismatch: no claim on its value here)."""
+    a = virtual_csv(tmp_path, 19, 1)
+    out = tmp_path / "cell.bpx.json"
+    args = ["fit", a, "--cell", "nca18650", "--params", "R_s_n,contact_resistance.R_c", "--extension"]
+    r = CliRunner().invoke(main, [*args, "contact_resistance:R_c=0.002", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    summary = json.loads((tmp_path / "cell.summary.json").read_text())
+    entry = summary["parameters"]["contact_resistance.R_c"]
+    assert entry["value"] != 0.002 and entry["ci95"][0] < entry["value"] < entry["ci95"][1]
+    fitted = battlab.Cell.from_bpx(out)
+    assert fitted.extensions["contact_resistance"]["R_c"] == pytest.approx(entry["value"])
+
+
+def test_fit_with_a_bad_extension_is_one_line(tmp_path, virtual_csv) -> None:
+    a = virtual_csv(tmp_path, 19, 1)
+    args = ["fit", a, "--cell", "nca18650", "--extension", "contact_resistance:Rc=1", "-o", str(tmp_path / "c.json")]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2 and "--extension 'contact_resistance:Rc=1'" in r.output and "Traceback" not in r.output

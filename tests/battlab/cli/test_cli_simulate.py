@@ -89,6 +89,23 @@ def test_bdf_csv_matches_the_api(nca18650: Cell, profile: Profile, profile_csv: 
     assert "out.bdf.csv" in result.stderr  # the summary line
 
 
+def test_extension_option_matches_the_api(nca18650: Cell, profile: Profile, profile_csv: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out.bdf.csv"
+    ext = ["--extension", "contact_resistance:R_c=0.004", "--extension", "current_sensor:offset=0.01,gain=-0.002"]
+    names = "contact_resistance.R_c,current_sensor.gain,R_s_n"
+    result = invoke("simulate", "nca18650", str(profile_csv), "--soc0", "0.5", *ext, "--sens", names, "-o", str(out))
+    assert result.exit_code == 0, result.output
+    table = pd.read_csv(out)
+    cell = nca18650.with_extension("contact_resistance", R_c=0.004).with_extension(
+        "current_sensor", offset=0.01, gain=-0.002
+    )
+    res = battlab.simulate(cell, profile, soc0=0.5, ambient=298.15, sensitivities=names.split(","))
+    check_against_api({c: table[c].to_numpy() for c in table.columns}, res)
+    meta = json.loads((tmp_path / "out.summary.json").read_text())
+    assert meta["extensions"]["contact_resistance"] == {"R_c": 0.004, "dRc_dT": 0.0}
+    assert meta["cell_hash"] == cell.hash()
+
+
 def test_hdf5_matches_the_api(nca18650: Cell, profile: Profile, profile_csv: Path, tmp_path: Path) -> None:
     out = tmp_path / "out.h5"
     result = invoke(
@@ -163,6 +180,17 @@ BAD = {
     "output suffix": (["nca18650", "{csv}", "-o", "{out_txt}"], ".bdf.csv"),
     "ambient out of range": (["nca18650", "{csv}", "--ambient", "200"], "ambient"),
     "invalid BPX": (["{bpx}", "{csv}"], "Porosity"),
+    "unknown extension": (["nca18650", "{csv}", "--extension", "warp_drive"], "unknown model extension 'warp_drive'"),
+    "extension value": (["nca18650", "{csv}", "--extension", "contact_resistance:R_c=big"], "--extension"),
+    "extension name": (["nca18650", "{csv}", "--extension", "contact_resistance:R=1"], "has no parameter 'R'"),
+    "thermal extension when isothermal": (
+        ["nca18650", "{csv}", "--extension", "thermal:dE_k_n=1000", "--isothermal"],
+        "'thermal' acts through the temperature",
+    ),
+    "sensitivity of an extension that is off": (
+        ["nca18650", "{csv}", "--sens", "contact_resistance.R_c"],
+        "extension 'contact_resistance' is not on",
+    ),
 }
 
 

@@ -117,3 +117,12 @@ def test_a_crash_in_stage_1_keeps_the_equilibrium_fit_on_disk(
     assert fitted["eps_s_n"] != pytest.approx(battlab.Cell.load("nca18650")["eps_s_n"], rel=1e-6)
     assert "partial: equilibrium only (stages 0 of 4)" in json.loads(out.read_text())["Header"]["Description"]
     assert sorted(p.name for p in out.parent.iterdir()) == ["cell.bpx.json", "cell.summary.json", "summary.json"]
+
+
+def test_extension_parameters_join_the_last_stage() -> None:
+    cell = battlab.Cell.load("nca18650").with_extension("contact_resistance", R_c=0.002)
+    table9 = workflow.stages("table9", None, [], cell)
+    assert table9[-1].names[-2:] == ("contact_resistance.R_c", "contact_resistance.dRc_dT")
+    assert [len(s.names) for s in table9[:-1]] == [len(g) for g in battlab.parameters.TABLE9_GROUPS[:-1]]
+    assert workflow.stages("all", None, [], cell)[0].names == cell.parameter_names()
+    assert workflow.stages("all", None, [])[0].names == battlab.parameters.NAMES

@@ -1,0 +1,66 @@
+"""The score tests' directions from the model itself: each catalog extension's exact sensitivities at its "off"
+values, beside the base parameters', on the data's own profile (the inputs of
+:func:`battlab.diagnose.score.score_test`).
+
+At "off" the extended model is the base model, so one simulation with the extension on at "off" gives both: the base
+parameters' columns J and the extension's columns S, dV/dθ̄ on the same steps.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from battlab import parameters
+from battlab.cell import Cell
+from battlab.model.extensions import CATALOG
+from battlab.simulation import simulate
+from protocols.profile import Profile
+
+#: causes tested by default: every catalog extension whose voltage is differentiable at "off" (the double layer's is
+#: not at C_dl = 0: for any C_dl > 0 the right limit at a current step holds the overpotential)
+DEFAULT_CAUSES: tuple[str, ...] = tuple(k for k in CATALOG if k != "double_layer")
+
+
+@dataclass(frozen=True)
+class Directions:
+    """One extension's score-test inputs on one profile: J (n_t × p) of the base parameters, S (n_t × q) of the
+    extension's (in ``names`` order), the voltage at "off" [V] (the base model's) and the samples reached."""
+
+    cause: str
+    J: np.ndarray
+    S: np.ndarray
+    names: tuple[str, ...]
+    voltage: np.ndarray
+
+
+def extension_directions(
+    cell: Cell,
+    profile: Profile,
+    soc0: float,
+    base_names: Sequence[str],
+    *,
+    causes: Sequence[str] | None = None,
+    ambient: float = 298.15,
+    isothermal: bool = False,
+) -> list[Directions]:
+    """Directions of the extensions :data:`DEFAULT_CAUSES` (or ``causes``) at the fitted base ``cell``: its
+    extensions are switched off first; one that cannot run here (``thermal`` when isothermal) is left out."""
+    base = cell
+    for key in list(cell.extensions):
+        base = base.without_extension(key)
+    out = []
+    for key in causes or DEFAULT_CAUSES:
+        if isothermal and CATALOG[key].requires_thermal:
+            continue
+        ext = base.with_extension(key)
+        names = tuple(p.qualified for p in parameters.EXTENSIONS[key])
+        res = simulate(
+            ext, profile, soc0=soc0, ambient=ambient, isothermal=isothermal, sensitivities=[*base_names, *names]
+        )
+        sens = res.sensitivities
+        p = len(base_names)
+        out.append(Directions(key, sens[:, :p], sens[:, p:], names, res.voltage))
+    return out
