@@ -1,15 +1,16 @@
 """The virtual lab: one virtual clock, a simulated cycler on a cell, a simulated chamber, their servers.
 
 Concurrency model: threads and blocking sockets. One ``threading.RLock`` (``lab.lock``) guards all simulated
-state; a ticker thread advances the instruments along the clock every ``tick_real_s`` real seconds, so time,
-the cell, the chamber air and the instrument watchdog move on while the host is silent or dead. Each server
-handler takes the lock and advances to "now" before it answers, so a current set at virtual time t flows from
-exactly t (zero-order hold). pymodbus's asyncio server runs in its own thread with its own loop.
+state; a ticker thread advances the instruments along the clock whenever nothing has for ``tick_real_s`` real
+seconds, so time, the cell, the chamber air and the instrument watchdog move on while the host is silent or dead.
+Each server handler takes the lock and advances to "now" before it answers, so a current set at virtual time t
+flows from exactly t (zero-order hold). pymodbus's asyncio server runs in its own thread with its own loop.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Sequence
@@ -110,6 +111,7 @@ class VirtualLab:
             else None
         )
         self._t = 0.0
+        self._advanced_mono = -math.inf  # when advance() last ran (time.monotonic)
         self._events = self._device_events(cfg.device_faults)
         self._stop = threading.Event()
         self._ticker: threading.Thread | None = None
@@ -177,8 +179,7 @@ class VirtualLab:
         warned_at = -1e9
         while not self._stop.wait(self.config.tick_real_s):
             try:
-                with self.lock:
-                    self.advance()
+                self.tick()
                 load = self.physics_load()
                 if load > 0.8 and time.monotonic() - warned_at > 60.0:
                     warned_at = time.monotonic()
@@ -196,6 +197,19 @@ class VirtualLab:
         elapsed_real = self._t / self.clock.speed
         return self.cycler.physics_wall_s / elapsed_real if elapsed_real > 0 else 0.0
 
+    def tick(self) -> bool:
+        """The ticker's turn: advance to now only if nothing has for ``tick_real_s`` real seconds (the host is
+        silent); returns whether it advanced.
+
+        While a host talks to the instruments its own queries advance them; a tick in between would only split
+        the physics into extra partial steps and hold the lock while the next query waits.
+        """
+        with self.lock:
+            if time.monotonic() - self._advanced_mono < self.config.tick_real_s:
+                return False
+            self.advance()
+            return True
+
     def advance(self) -> float:
         """Advance every simulated instrument to the clock's now (call with ``lock`` held); returns now."""
         with self.lock:
@@ -205,6 +219,7 @@ class VirtualLab:
                 self._advance_to(max(t_event, self._t))
                 action()
             self._advance_to(t)
+            self._advanced_mono = time.monotonic()
             return self._t
 
     def _advance_to(self, t: float) -> None:

@@ -23,6 +23,7 @@ from drivers.testing import wait_until
 from drivers.transport import LineAdapter
 from drivers.virtual.faults import DeviceFaultPlan
 from drivers.virtual.instruments import ChamberConfig
+from drivers.virtual.lab import VirtualLab, VirtualLabConfig
 from drivers.virtual.noise import NOISELESS
 from drivers.virtual.physics import CellLimits, ContactResistance
 from protocols.errors import InputError
@@ -335,3 +336,17 @@ def test_time_starts_when_the_instruments_are_served(make_lab) -> None:  # noqa:
     # computed while the first replies wait
     lab = make_lab(SlowToBuildCell(), speed=1000.0)
     assert lab.snapshot()["t_s"] < 100.0
+
+
+def test_the_ticker_leaves_the_cell_alone_while_a_host_talks() -> None:
+    """The ticker advances the instruments only after ``tick_real_s`` without any advance: a tick between a host's
+    queries would split the physics into extra partial steps (and hold the lock while the next query waits)."""
+    ports = {"cycler_port": None, "modbus_port": None, "modbus_rtu_port": None, "espec_port": None}
+    lab = VirtualLab(None, VirtualLabConfig(speed=1000.0, tick_real_s=0.5, **ports))  # not started: no ticker
+    lab.advance()
+    steps, t = lab.cycler.physics_steps, lab.cycler.t
+    assert not lab.tick()
+    assert lab.cycler.physics_steps == steps and lab.cycler.t == t
+    time.sleep(0.5)
+    assert lab.tick()
+    assert lab.cycler.physics_steps > steps and lab.cycler.t > t
