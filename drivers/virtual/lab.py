@@ -1,10 +1,11 @@
 """The virtual lab: one virtual clock, a simulated cycler on a cell, a simulated chamber, their servers.
 
 Concurrency model: threads and blocking sockets. One ``threading.RLock`` (``lab.lock``) guards all simulated
-state; a ticker thread advances the instruments along the clock whenever nothing has for ``tick_real_s`` real
-seconds, so time, the cell, the chamber air and the instrument watchdog move on while the host is silent or dead.
-Each server handler takes the lock and advances to "now" before it answers, so a current set at virtual time t
-flows from exactly t (zero-order hold). pymodbus's asyncio server runs in its own thread with its own loop.
+state; on a free-running clock a ticker thread advances the instruments along the clock whenever nothing has for
+``tick_real_s`` real seconds, so time, the cell, the chamber air and the instrument watchdog move on while the host
+is silent or dead. Each server handler takes the lock and advances to "now" before it answers, so a current set at
+virtual time t flows from exactly t (zero-order hold). pymodbus's asyncio server runs in its own thread with its
+own loop.
 
 Clock modes (``VirtualLabConfig.clock``, :mod:`drivers.virtual.clock`):
 
@@ -15,9 +16,9 @@ Clock modes (``VirtualLabConfig.clock``, :mod:`drivers.virtual.clock`):
   sleep on that clock: the in-process virtual tester of ``battlab run --cycler virtual``), and at most at ``speed``.
   The physics is computed in the sleeps (in ``max_step_s`` pieces), and each message to an instrument takes a fixed
   ``exchange_s`` (10 ms): every sample is taken 20 ms after its scheduled time and every current set applies 10 ms
-  before it, whatever the machine's load. The price is a slower clock when the computer cannot
-  keep up, and no time passing while the host is silent (no watchdog).
-  Campaigns and any run whose data are fitted use this mode.
+  before it, whatever the machine's load. The price is a slower clock when the computer cannot keep up, and no
+  time passing while the host is silent (no watchdog; in one process a dead host takes the tester with it).
+  Campaigns and any run whose data are fitted should use this mode.
 """
 
 from __future__ import annotations
