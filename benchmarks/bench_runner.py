@@ -3,7 +3,9 @@
 1. One-hour library profile (default 403: 10 s pulses, ±2 A, SOC 0.4) run by the full runner (``start_run``:
    pre-flight, step executors, safety checks, HDF5 log, catalog) on the virtual tester with battlab's DFN cell,
    over loopback sockets (SCPI cycler + Modbus TCP chamber), at each ``--speeds``; the tester runs in this process
-   (threads) or is served by ``battlab virtual-tester serve`` in another process. Printed: wall time of the profile
+   (threads; its clock lock-step or free-running, ``--clocks``) or is served by ``battlab virtual-tester serve`` in
+   another process (free-running). A lock-step clock cannot leave a sample late: its RTF shows what the machine
+   sustains instead. Printed: wall time of the profile
    step, achieved real-time factor (virtual s / wall s), samples logged vs the ideal, the sampling lateness, the
    largest gap between samples and the gaps marked in the log (over 1.5 sample periods), the wall time per sample
    inside instrument calls, and the runner's own overhead per sample (wall time outside instrument calls and
@@ -80,11 +82,13 @@ def served(speed: float, physics: str = "dfn") -> Iterator[dict[str, str]]:
         yield urls
 
 
-def bench_profile(plan: Plan, speed: float, where: str, workdir: Path, physics: str = "dfn") -> dict[str, Any]:
-    out = workdir / f"run-{where}-{speed:g}-{physics}.h5"
+def bench_profile(
+    plan: Plan, speed: float, where: str, workdir: Path, physics: str = "dfn", clock: str = "lockstep"
+) -> dict[str, Any]:
+    out = workdir / f"run-{where}-{speed:g}-{physics}-{clock}.h5"
     with contextlib.ExitStack() as stack:
         if where == "thread":
-            settings = RunSettings("virtual", "virtual", speed=speed, soc0=0.4, physics=physics)
+            settings = RunSettings("virtual", "virtual", speed=speed, soc0=0.4, physics=physics, clock=clock)
         else:
             urls = stack.enter_context(served(speed, physics))
             settings = RunSettings(urls["cycler"], urls["chamber"])
@@ -99,6 +103,7 @@ def bench_profile(plan: Plan, speed: float, where: str, workdir: Path, physics: 
     dt = np.diff(t)
     return {
         "server": where,
+        "clock": clock,
         "physics": physics,
         "speed": speed,
         "status": result.status,
@@ -113,6 +118,7 @@ def bench_profile(plan: Plan, speed: float, where: str, workdir: Path, physics: 
         "p99_gap_s": float(np.percentile(dt, 99)),
         "mean_late_s": stats["mean_late_s"],
         "max_late_s": stats["max_late_s"],
+        "late_samples": int(stats["late_samples"]),
         "late_fraction": stats["late_samples"] / max(1, stats["samples"]),
         "io_per_sample_s": stats["io_per_sample_s"],
         "overhead_per_sample_s": stats["overhead_per_sample_s"],
@@ -226,6 +232,13 @@ def main() -> None:
         default=["dfn", "standin"],
         help="cell physics of the virtual tester (the stand-in separates the DFN's cost)",
     )
+    ap.add_argument(
+        "--clocks",
+        nargs="+",
+        choices=["lockstep", "free"],
+        default=["lockstep", "free"],
+        help="clock of the in-process tester (a served tester's clock is free-running)",
+    )
     args = ap.parse_args()
     plan = one_hour_plan(args.profile, cycle=args.cycle)
     what = f"drive cycle {args.cycle.upper()}" if args.cycle else f"one-hour library profile {args.profile}"
@@ -235,17 +248,19 @@ def main() -> None:
     wheres = ["thread"] if args.quick else ["thread", "process"]
     speeds = [1000.0] if args.quick else args.speeds
     print(f"{what} on the DFN virtual tester over loopback sockets (runner: start_run, 1 s sampling)")
-    head = f"  {'physics':<8}{'server':<8}{'speed':>7}{'wall s':>8}{'RTF':>8}{'samples':>10}{'late mean s':>12}"
+    head = f"  {'physics':<8}{'server':<8}{'clock':<9}{'speed':>7}{'wall s':>8}{'RTF':>8}{'samples':>10}"
+    head += f"{'late':>6}{'late mean s':>12}"
     print(head + f"{'late max s':>11}{'gap max s':>10}{'gaps':>6}{'io/sample':>11}{'runner/sample':>14}  status")
     physics_list = ["dfn"] if args.quick else args.physics
-    for physics, where, speed in ((p, w, s) for p in physics_list for w in wheres for s in speeds):
-        if physics == "standin" and where == "process":
+    combos = [(p, w, c, s) for p in physics_list for w in wheres for c in args.clocks for s in speeds]
+    for physics, where, clock, speed in combos:
+        if where == "process" and (physics == "standin" or clock != "free"):
             continue
-        r = bench_profile(plan, speed, where, work, physics)
+        r = bench_profile(plan, speed, where, work, physics, clock)
         runs.append(r)
         print(
-            f"  {physics:<8}{where:<8}{speed:>7g}{r['profile_wall_s']:>8.2f}{r['rtf']:>8.0f}"
-            f"{r['samples']:>5}/{r['ideal_samples']:<5}{r['mean_late_s']:>11.3f}{r['max_late_s']:>11.2f}"
+            f"  {physics:<8}{where:<8}{clock:<9}{speed:>7g}{r['profile_wall_s']:>8.2f}{r['rtf']:>8.0f}"
+            f"{r['samples']:>5}/{r['ideal_samples']:<5}{r['late_samples']:>5}{r['mean_late_s']:>12.3f}{r['max_late_s']:>11.2f}"
             f"{r['max_gap_s']:>10.2f}{r['gaps_marked']:>6}{1e6 * r['io_per_sample_s']:>8.0f} us"
             f"{1e6 * r['overhead_per_sample_s']:>11.0f} us  {r['status']}"
         )

@@ -47,6 +47,10 @@ class RunSettings:
     seed: int = 0
     #: ``dfn`` (battlab's model, the default) or ``standin`` (the drivers' equivalent circuit: fast, for tests)
     physics: str = "dfn"
+    #: the in-process virtual tester's clock: ``lockstep`` (the default: time moves only as the runner sleeps, so
+    #: every sample is on time whatever the load; host and tester are one process, so a dead host is no case to
+    #: test) or ``free`` (time runs by itself as on a real bench: late samples and the watchdog are possible)
+    clock: str = "lockstep"
     library: str | None = None
 
     @property
@@ -111,11 +115,13 @@ def open_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambie
     if settings.virtual:
         from battlab.lab.virtual import make_cell_physics
         from drivers.virtual.instruments import ChamberConfig
-        from drivers.virtual.lab import VirtualLab, VirtualLabConfig
+        from drivers.virtual.lab import CLOCK_MODES, VirtualLab, VirtualLabConfig
         from drivers.virtual.physics import EquivalentCircuitCell
 
         if settings.physics not in ("dfn", "standin"):
             raise InputError(f"virtual tester physics {settings.physics!r}: expected 'dfn' or 'standin'")
+        if settings.clock not in CLOCK_MODES:
+            raise InputError(f"virtual tester clock {settings.clock!r}: expected {' or '.join(map(repr, CLOCK_MODES))}")
 
         config = VirtualLabConfig(
             speed=settings.speed,
@@ -125,6 +131,7 @@ def open_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambie
             modbus_rtu_port=None,
             espec_port=None,
             chamber=ChamberConfig(T0_K=ambient_degC + 273.15),
+            clock=settings.clock,
         )
         physics = make_cell_physics(cell) if settings.physics == "dfn" else EquivalentCircuitCell()
         lab = VirtualLab(physics, config).start()
@@ -140,6 +147,8 @@ def open_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambie
             clock: Clock = cycler.clock() if hasattr(cycler, "clock") else RealClock()
         except (InstrumentError, OSError) as exc:
             raise InputError(f"cycler {settings.cycler_url}: does not answer: {_detail(exc)}") from None
+        if lab is not None and lab.clock.lockstep and cycler_url == lab.cycler_url:
+            clock = lab.clock  # the runner's sleeps are what moves a lock-step tester's time
         speed = float(getattr(clock, "speed", 1.0))
         link_timeout = min(REAL_LINK_TIMEOUT_S, max(MIN_LINK_TIMEOUT_S, LINK_TIMEOUT_VIRTUAL_S / speed))
         adapter = getattr(cycler, "adapter", None)

@@ -439,8 +439,16 @@ class RunEngine:
             raise Abort("protection", f"the cycler turned its output off: {causes}{self._context(p.causes)}")
 
     def _context(self, causes: frozenset[str] = frozenset()) -> str:
-        """What the instruments say now, for an abort reason (never raises)."""
+        """What the instruments say now, for an abort reason (never raises). The cycler's error queue is read (and so
+        emptied): it may say why the output went off, and an error left in it would be taken for the answer to the
+        safe shutdown's output-off command."""
         parts = []
+        try:
+            errors = self.cycler.errors()
+            if errors:
+                parts.append("cycler errors: " + "; ".join(f"{code} {message}" for code, message in errors))
+        except (InstrumentError, OSError):
+            pass
         try:
             m = self.cycler.measure()
             T = f", T {m.temperature_K - 273.15:.1f} degC" if m.temperature_K is not None else ""

@@ -17,6 +17,14 @@ from protocols.errors import InputError
 
 _EMPTY = np.zeros(0)
 
+#: a step that fails even with a smaller first step is retried as two halves, each retried the same way, down to
+#: 1/2**SPLIT_DEPTH of the step
+SPLIT_DEPTH = 5
+
+
+class CellLimitError(RuntimeError):
+    """The cell left its physical window (a particle surface emptied or filled): no smaller step helps."""
+
 
 class LiveCell:
     """The DFN–thermal cell as a state machine. Currents in A, positive = charge; temperatures in K."""
@@ -137,13 +145,58 @@ class LiveCell:
         self._h_prev = h_prev if h_prev > 0 else self._h_prev
         V, T1, T2, smin, smax = out[0]
         if not (smin > 0.0 and smax < 1.0):
-            raise RuntimeError("cell model: a particle surface emptied or filled (the cell is beyond its limits)")
+            raise CellLimitError("cell model: a particle surface emptied or filled (the cell is beyond its limits)")
         return float(V), float(T1), float(T2)
 
     def step(self, current: float, dt: float, ambient: float) -> tuple[float, float]:
-        """Apply ``current`` [A, positive = charge] for ``dt`` [s] at ``ambient`` [K]; return (V, T_surface)."""
+        """Apply ``current`` [A, positive = charge] for ``dt`` [s] at ``ambient`` [K]; return (V, T_surface).
+
+        A step that does not converge is retried with a smaller first step, then as halves (each retried the same
+        way, ``SPLIT_DEPTH`` levels). A step that fails all the same raises ``RuntimeError`` and leaves the cell as it
+        was before the step, so the next step (another current, a rest) starts from a valid state."""
         if dt < 0 or not np.isfinite(dt) or not np.isfinite(current):
             raise InputError(f"step: need finite current and dt ≥ 0, got {current} A, {dt} s")
-        self.voltage, self.T_core, self.T_surface = self._advance(-float(current), float(dt), float(ambient))
-        self.t += dt
+        before = self._save()
+        t0 = self.t
+        try:
+            self.voltage, self.T_core, self.T_surface = self._advance_split(
+                -float(current), float(dt), float(ambient), SPLIT_DEPTH
+            )
+        except RuntimeError:
+            self._restore(before)
+            raise
+        self.t = t0 + dt
         return self.voltage, self.T_surface
+
+    def _save(self) -> tuple:
+        return (
+            self._y.copy(),
+            self._xp.copy(),
+            self._I_dis,
+            self._h_prev,
+            self._h_allowed,
+            self.t,
+            self.voltage,
+            self.T_core,
+            self.T_surface,
+        )
+
+    def _restore(self, saved: tuple) -> None:
+        y, xp, self._I_dis, self._h_prev, self._h_allowed, self.t, self.voltage, self.T_core, self.T_surface = saved
+        self._y, self._xp = y.copy(), xp.copy()
+
+    def _advance_split(self, I_dis: float, dt: float, ambient: float, depth: int) -> tuple[float, float, float]:
+        """:meth:`_advance`; if that fails to converge, the two halves of ``dt`` in turn (``depth`` more levels)."""
+        before = self._save()
+        try:
+            return self._advance(I_dis, dt, ambient)
+        except CellLimitError:
+            raise
+        except RuntimeError:
+            if depth == 0 or dt <= 0.0:
+                raise
+            self._restore(before)
+        half = 0.5 * dt
+        self._advance_split(I_dis, half, ambient, depth - 1)
+        self.t += half
+        return self._advance_split(I_dis, dt - half, ambient, depth - 1)

@@ -68,7 +68,7 @@ class ScpiCyclerServer:
     # -- dispatch ---------------------------------------------------------------------------------------
     def handle(self, line: str) -> str | None:
         with self.lab.lock:
-            t = self.lab.advance()
+            t = self.lab.exchange()
             cycler = self.lab.cycler
             cycler.note_io(t)
             replies: list[str] = []

@@ -46,7 +46,7 @@ class EspecServer:
         cmd = line.strip()
         upper = cmd.upper()
         with self.lab.lock:
-            self.lab.advance()
+            self.lab.exchange()
             ch = self.lab.chamber
             c = ch.config
             if upper == "TEMP?":

@@ -189,7 +189,9 @@ class SimulatedCycler:
         log.warning("virtual cycler: output off at t=%.3f s (%s)%s", t, reason, "" if was_on else ", was off")
 
     def clear_protection(self) -> None:
+        """Clear the latched trips, a cell-model failure included (the physics is left at its last good state)."""
         self.status = 0
+        self.model_failed = False
 
     # -- time -------------------------------------------------------------------------------------
     def advance(self, t: float, ambient_K: float) -> None:
@@ -214,8 +216,9 @@ class SimulatedCycler:
                     self.physics_steps += 1
                 except Exception as exc:  # the model is foreign code: any failure → output off
                     self.model_failed = True
-                    self.trip({MODEL}, f"cell model failed: {exc}", t_next)
-                    self.push_error(-310, f"System error; cell model: {exc}"[:120])
+                    detail = str(exc) if str(exc).startswith("cell model") else f"cell model: {exc}"
+                    self.trip({MODEL}, f"cell model failed: {detail}", t_next)
+                    self.push_error(-310, f"System error; {detail}"[:120])
                     self.t = t_next
                     continue
                 self._dv = v - self.v_true

@@ -1,15 +1,30 @@
 """The virtual lab: one virtual clock, a simulated cycler on a cell, a simulated chamber, their servers.
 
 Concurrency model: threads and blocking sockets. One ``threading.RLock`` (``lab.lock``) guards all simulated
-state; a ticker thread advances the instruments along the clock every ``tick_real_s`` real seconds, so time,
-the cell, the chamber air and the instrument watchdog move on while the host is silent or dead. Each server
-handler takes the lock and advances to "now" before it answers, so a current set at virtual time t flows from
-exactly t (zero-order hold). pymodbus's asyncio server runs in its own thread with its own loop.
+state; on a free-running clock a ticker thread advances the instruments along the clock whenever nothing has for
+``tick_real_s`` real seconds, so time, the cell, the chamber air and the instrument watchdog move on while the host
+is silent or dead. Each server handler takes the lock and advances to "now" before it answers, so a current set at
+virtual time t flows from exactly t (zero-order hold). pymodbus's asyncio server runs in its own thread with its
+own loop.
+
+Clock modes (``VirtualLabConfig.clock``, :mod:`drivers.virtual.clock`):
+
+- ``free`` (the default): virtual time runs at ``speed`` × real time by itself, as on a real bench. A host or a
+  physics that cannot keep up leaves samples late (the runner marks the gaps), and a silent host trips the
+  instrument watchdog. Watchdog, fault-injection, interlock and timing tests need this mode.
+- ``lockstep``: virtual time moves only when the host sleeps on ``lab.clock`` (the host must run in this process and
+  sleep on that clock: the in-process virtual tester of ``battlab run --cycler virtual``), and at most at ``speed``.
+  The physics is computed in the sleeps (in ``max_step_s`` pieces), and each message to an instrument takes a fixed
+  ``exchange_s`` (10 ms): every sample is taken 20 ms after its scheduled time and every current set applies 10 ms
+  before it, whatever the machine's load. The price is a slower clock when the computer cannot keep up, and no
+  time passing while the host is silent (no watchdog; in one process a dead host takes the tester with it).
+  Campaigns and any run whose data are fitted should use this mode.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Sequence
@@ -18,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.scpi.dialects import BATTLAB_VIRTUAL, ScpiDialect
-from drivers.virtual.clock import VirtualClock
+from drivers.virtual.clock import LockStepClock, VirtualClock
 from drivers.virtual.cycler_server import ScpiCyclerServer
 from drivers.virtual.espec_server import EspecServer
 from drivers.virtual.faults import DeviceFaultPlan, FaultConfig, FaultInjector
@@ -30,6 +45,7 @@ from drivers.virtual.physics import CellPhysics, Effect, EquivalentCircuitCell, 
 log = logging.getLogger("drivers.virtual")
 
 LOOPBACK = "127.0.0.1"
+CLOCK_MODES = ("free", "lockstep")
 
 
 @dataclass
@@ -51,6 +67,12 @@ class VirtualLabConfig:
     tick_real_s: float = 0.01
     #: a chamber alarm turns the cycler output off (status bit INH), as a hard-wired interlock would
     interlock: bool = True
+    #: ``free``: time runs by itself; ``lockstep``: time moves only as the in-process host sleeps (module docstring)
+    clock: str = "free"
+    #: on a lock-step clock, the virtual time / s each message to an instrument takes, as over a LAN (a setting and
+    #: the reading after it, or the last sample of a step and the first of the next, are never at the same instant;
+    #: and a reading right after a current step is 10 ms into it, not within the instrument's 2 ms sample jitter)
+    exchange_s: float = 0.01
     scpi_faults: FaultConfig = field(default_factory=FaultConfig)
     modbus_faults: FaultConfig = field(default_factory=FaultConfig)
     espec_faults: FaultConfig = field(default_factory=FaultConfig)
@@ -73,7 +95,13 @@ class VirtualLab:
         if cfg.host != LOOPBACK:
             log.warning("virtual lab serving on %s, not loopback", cfg.host)
         self.lock = threading.RLock()
-        self.clock = VirtualClock(cfg.speed)
+        if cfg.clock not in CLOCK_MODES:
+            raise ValueError(f"virtual lab clock {cfg.clock!r}: expected one of {', '.join(CLOCK_MODES)}")
+        if not cfg.exchange_s > 0:
+            raise ValueError(f"virtual lab exchange_s must be > 0, got {cfg.exchange_s}")
+        self.clock: VirtualClock | LockStepClock = (
+            LockStepClock(cfg.speed) if cfg.clock == "lockstep" else VirtualClock(cfg.speed)
+        )
         rng = np.random.default_rng(cfg.seed)
         self.physics = apply_effects(physics if physics is not None else EquivalentCircuitCell(), effects)
         self.chamber = SimulatedChamber(cfg.chamber, rng=np.random.default_rng(rng.integers(2**63)))
@@ -110,7 +138,10 @@ class VirtualLab:
             else None
         )
         self._t = 0.0
+        self._advanced_mono = -math.inf  # when advance() last ran (time.monotonic)
         self._events = self._device_events(cfg.device_faults)
+        if isinstance(self.clock, LockStepClock):
+            self.clock.bind(self._step_to)
         self._stop = threading.Event()
         self._ticker: threading.Thread | None = None
         self.started = False
@@ -129,8 +160,9 @@ class VirtualLab:
         # hundreds of virtual seconds, computed under the lock while the first replies wait.
         with self.lock:
             self.clock.restart(self._t)
-        self._ticker = threading.Thread(target=self._tick_loop, name="virtual-lab-ticker", daemon=True)
-        self._ticker.start()
+        if not self.clock.lockstep:  # a lock-step clock stands still between the host's sleeps: nothing to tick
+            self._ticker = threading.Thread(target=self._tick_loop, name="virtual-lab-ticker", daemon=True)
+            self._ticker.start()
         self.started = True
         return self
 
@@ -177,8 +209,7 @@ class VirtualLab:
         warned_at = -1e9
         while not self._stop.wait(self.config.tick_real_s):
             try:
-                with self.lock:
-                    self.advance()
+                self.tick()
                 load = self.physics_load()
                 if load > 0.8 and time.monotonic() - warned_at > 60.0:
                     warned_at = time.monotonic()
@@ -196,16 +227,46 @@ class VirtualLab:
         elapsed_real = self._t / self.clock.speed
         return self.cycler.physics_wall_s / elapsed_real if elapsed_real > 0 else 0.0
 
+    def tick(self) -> bool:
+        """The ticker's turn: advance to now only if nothing has for ``tick_real_s`` real seconds (the host is
+        silent); returns whether it advanced.
+
+        While a host talks to the instruments its own queries advance them; a tick in between would only split
+        the physics into extra partial steps and hold the lock while the next query waits.
+        """
+        with self.lock:
+            if time.monotonic() - self._advanced_mono < self.config.tick_real_s:
+                return False
+            self.advance()
+            return True
+
     def advance(self) -> float:
         """Advance every simulated instrument to the clock's now (call with ``lock`` held); returns now."""
         with self.lock:
-            t = self.clock.now()
-            while self._events and self._events[0][0] <= t:
-                t_event, action = self._events.pop(0)
-                self._advance_to(max(t_event, self._t))
-                action()
-            self._advance_to(t)
+            self._advance_through(self.clock.now())
+            self._advanced_mono = time.monotonic()
             return self._t
+
+    def exchange(self) -> float:
+        """A message arrived at a server: advance to now; a lock-step clock first moves on by ``exchange_s``."""
+        with self.lock:
+            if self.clock.lockstep:
+                self._step_to(self.clock.now() + self.config.exchange_s)
+            return self.advance()
+
+    def _step_to(self, t: float) -> None:
+        """The lock-step clock's sleep: compute the instruments to ``t``, then set the clock there."""
+        with self.lock:
+            self._advance_through(t)
+            self.clock.set(t)  # type: ignore[union-attr]
+
+    def _advance_through(self, t: float) -> None:
+        """Advance to ``t``, firing the device faults scheduled on the way at their times."""
+        while self._events and self._events[0][0] <= t:
+            t_event, action = self._events.pop(0)
+            self._advance_to(max(t_event, self._t))
+            action()
+        self._advance_to(t)
 
     def _advance_to(self, t: float) -> None:
         if t <= self._t:

@@ -120,7 +120,7 @@ class F4TModbusServer:
             return address < reg + n and reg < end
 
         with self.lab.lock:
-            self.lab.advance()
+            self.lab.exchange()
             ch = self.lab.chamber
             if values is None:  # read: refresh the live registers
                 if covers(wc.PROCESS_VALUE):

@@ -48,8 +48,9 @@ class CellPhysics(Protocol):
     def step(self, current_A: float, dt_s: float, ambient_K: float) -> tuple[float, float]:
         """Apply ``current_A`` (positive = charge) for ``dt_s`` s with the air at ``ambient_K``.
 
-        Returns ``(voltage_V, T_surface_K)`` at the end of the step. May raise (e.g. a solver failure);
-        the virtual cycler then turns its output off and reports it.
+        Returns ``(voltage_V, T_surface_K)`` at the end of the step. May raise (e.g. a solver failure), leaving
+        the cell as it was before the step; the virtual cycler then turns its output off and reports it, and
+        clearing its protection lets the next run go on from that state.
         """
         ...
 

@@ -7,7 +7,7 @@ import time
 import pytest
 
 from drivers.clock import Clock, RealClock, TrackedClock
-from drivers.virtual.clock import VirtualClock
+from drivers.virtual.clock import LockStepClock, VirtualClock
 
 
 def test_virtual_clock_runs_at_speed_by_itself() -> None:
@@ -45,3 +45,30 @@ def test_tracked_clock_estimates_a_remote_clock() -> None:
         before, estimate, after = remote.now(), tracked.now(), remote.now()
         assert before - 0.5 - tracked.uncertainty_s <= estimate <= after + 0.5 + tracked.uncertainty_s
         time.sleep(0.003)
+
+
+def test_lock_step_clock_moves_only_when_slept_on_and_at_most_at_speed() -> None:
+    computed: list[float] = []
+    clock = LockStepClock(speed=1000.0, t0_s=5.0)
+
+    def advance(t: float) -> None:  # the lab computes its instruments to t, then sets the clock
+        computed.append(t)
+        clock.set(t)
+
+    clock.bind(advance)
+    assert isinstance(clock, Clock) and clock.lockstep and not VirtualClock().lockstep
+    time.sleep(0.02)
+    assert clock.now() == 5.0  # no sleep, no time
+    clock.restart(5.0)  # pace from here (the 20 ms just spent would be caught up first)
+    w0 = time.monotonic()
+    for _ in range(3):
+        clock.sleep(10.0)
+    assert computed == [15.0, 25.0, 35.0] and clock.now() == 35.0
+    assert time.monotonic() - w0 >= 0.03  # 30 virtual s at 1000x: never faster than speed
+    clock.sleep(0.0)
+    clock.sleep(-1.0)
+    assert computed == [15.0, 25.0, 35.0]
+    clock.sleep_until(36.5)
+    assert clock.now() == 36.5 and clock.real_seconds(3600.0) == 3.6
+    with pytest.raises(ValueError):
+        LockStepClock(speed=-1.0)

@@ -335,3 +335,35 @@ def test_a_resume_with_an_unreachable_instrument_changes_nothing(make_lab, home:
     resumed = CliRunner().invoke(main, ["runs", "resume", str(first.run_id), "--quiet"])
     assert resumed.exit_code == 0, resumed.output
     assert Catalog().get(first.run_id).status == "completed"
+
+
+def test_a_cell_model_failure_aborts_its_run_and_the_next_run_goes_on(make_lab, home: Path, tmp_path: Path) -> None:
+    """The DFN cell cannot carry 5C at 3 % SOC: that step fails to converge even in halves. The run aborts with the
+    output off and the cycler's reason; the tester stays usable and the next run on it completes (its reset clears
+    the failure; the cell goes on from its last good state)."""
+    from battlab.lab.virtual import make_cell_physics
+
+    lab = make_lab(make_cell_physics("nca18650"), soc0=0.03, speed=100.0)
+    steps = """
+name = "{name}"
+[run]
+stable_hold_s = 5
+[[steps]]
+kind = "rest"
+until = "time >= 5"
+[[steps]]
+kind = "cc"
+current = {current}
+until = ["time >= 20", "voltage >= 4.1"]
+[[steps]]
+kind = "rest"
+until = "time >= 5"
+"""
+    failed = run_on(lab, steps.format(name="beyond the cell", current=-13.5), tmp_path, name="fail.h5")
+    assert failed.status == "aborted" and failed.reason.startswith("protection: ")
+    assert "MODEL" in failed.reason and "cell model: step did not converge" in failed.reason
+    assert failed.summary["shutdown"]["output_off_confirmed"] and not lab.snapshot()["output_on"]
+    ok = run_on(lab, steps.format(name="a charge", current=2.7), tmp_path, name="ok.h5")
+    assert (ok.status, ok.reason) == ("completed", None)
+    data = read_log(ok.log_path)
+    assert np.all(data.columns["Current / A"][data.columns["Step Index / 1"] == 2] > 2.6)

@@ -354,3 +354,37 @@ def test_repeated_trials_for_the_noise_model(make_lab, home: Path, tmp_path: Pat
         trials.append(np.interp(np.r_[5:16, 25:36, 45:56], st, cols[V][m]))
     # the same experiment three times: the trials agree far better than the 90-180 mV current steps they contain
     assert repeat_noise(np.array(trials)) < 0.01
+
+
+def test_the_in_process_tester_keeps_every_sample_of_a_drive_cycle_at_1000x(home: Path, tmp_path: Path) -> None:
+    """``virtual`` URLs run the tester on a lock-step clock: at 1000x every 1 s sample of a UDDS stretch is logged
+    at its scheduled time (none late, no gap, whatever the machine's load; each message to the tester takes 10 ms)
+    with the current the profile applies from that sample on."""
+    from protocols import Cycle, drive_profile
+
+    udds = drive_profile(Cycle.UDDS)
+    n = 300
+    text = f"""
+name = "udds stretch"
+[run]
+stable_hold_s = 20
+[[steps]]
+kind = "rest"
+until = "time >= 10"
+[[steps]]
+kind = "profile"
+profile = {{ t = {udds.t[: n + 1].tolist()}, current = {udds.current[: n + 1].tolist()} }}
+"""
+    settings = RunSettings("virtual", "virtual", speed=1000.0, soc0=0.6, physics="standin")
+    assert settings.clock == "lockstep"
+    result = start_run(plan_from(text, tmp_path), settings, tmp_path / "udds.h5", display=False)
+    assert (result.status, result.reason) == ("completed", None)
+    cols = check_log(result)
+    stats = result.summary["stats"]
+    assert stats["late_samples"] == 0 and stats["gaps"] == 0 and stats["max_late_s"] <= 0.05
+    prof = cols[INDEX] == 2
+    t = cols[TIME][prof] - cols[TIME][prof][0]
+    np.testing.assert_allclose(t, np.arange(n + 1), atol=0.05)  # every sample, on the grid
+    expected = np.array(udds.current[: n + 1], float)
+    expected[-1] = expected[-2]  # the profile's last point ends it: its current is not applied
+    np.testing.assert_allclose(cols[I][prof], expected, atol=0.01)  # measured (noisy) = programmed at the instant

@@ -23,6 +23,7 @@ from drivers.testing import wait_until
 from drivers.transport import LineAdapter
 from drivers.virtual.faults import DeviceFaultPlan
 from drivers.virtual.instruments import ChamberConfig
+from drivers.virtual.lab import VirtualLab, VirtualLabConfig
 from drivers.virtual.noise import NOISELESS
 from drivers.virtual.physics import CellLimits, ContactResistance
 from protocols.errors import InputError
@@ -335,3 +336,43 @@ def test_time_starts_when_the_instruments_are_served(make_lab) -> None:  # noqa:
     # computed while the first replies wait
     lab = make_lab(SlowToBuildCell(), speed=1000.0)
     assert lab.snapshot()["t_s"] < 100.0
+
+
+def test_the_ticker_leaves_the_cell_alone_while_a_host_talks() -> None:
+    """The ticker advances the instruments only after ``tick_real_s`` without any advance: a tick between a host's
+    queries would split the physics into extra partial steps (and hold the lock while the next query waits)."""
+    ports = {"cycler_port": None, "modbus_port": None, "modbus_rtu_port": None, "espec_port": None}
+    lab = VirtualLab(None, VirtualLabConfig(speed=1000.0, tick_real_s=0.5, **ports))  # not started: no ticker
+    lab.advance()
+    steps, t = lab.cycler.physics_steps, lab.cycler.t
+    assert not lab.tick()
+    assert lab.cycler.physics_steps == steps and lab.cycler.t == t
+    time.sleep(0.5)
+    assert lab.tick()
+    assert lab.cycler.physics_steps > steps and lab.cycler.t > t
+
+
+def test_a_lock_step_lab_moves_only_as_its_host_sleeps(make_lab) -> None:  # noqa: ANN001
+    """Lock-step clock: no ticker; time moves only as the host sleeps (the cell computed once per ``max_step_s``) and
+    by ``exchange_s`` per message, never with real time; device faults fire when the clock crosses their times."""
+    lab = make_lab(clock="lockstep", noise=NOISELESS, device_faults=DeviceFaultPlan(chamber_alarm_at_s=25.0))
+    assert lab.clock.lockstep and lab._ticker is None and lab.config.exchange_s == 0.01
+    cyc = ScpiCycler.open(lab.cycler_url)
+    cyc.set_current_limits(5.4, 13.5)
+    rest = cyc.measure()
+    time.sleep(0.05)  # 50 virtual s on a free clock
+    assert cyc.measure().t_s == pytest.approx(rest.t_s + 0.01)
+    cyc.set_current(2.7)
+    cyc.output(True)
+    on = cyc.measure()
+    assert on.current_A == pytest.approx(2.7) and on.voltage_V > rest.voltage_V + 2.7 * 0.03  # R0 of the stand-in
+    steps = lab.cycler.physics_steps
+    lab.clock.sleep(10.0)
+    assert lab.cycler.physics_steps == steps + 10
+    later = cyc.measure()
+    assert later.t_s == pytest.approx(on.t_s + 10.01) and later.voltage_V > on.voltage_V
+    lab.clock.sleep(20.0)  # crosses the chamber alarm at 25 s: the interlock turns the output off there
+    assert not lab.cycler.output_on and lab.cycler.trips[-1].t_s == pytest.approx(25.0)
+    with pytest.raises(ValueError, match="clock 'stopped'"):
+        VirtualLab(None, VirtualLabConfig(clock="stopped"))
+    cyc.close()

@@ -187,6 +187,13 @@ def test_a_failing_model_turns_the_output_off() -> None:
     assert c.status >> MODEL & 1 and not c.output_on and c.pop_error()[0] == -310
     c.advance(10.0, 298.15)  # time goes on
     assert c.t == 10.0
+    with pytest.raises(ExecutionError):
+        c.set_output(True)
+    c.clear_protection()  # the next run's reset: the cell goes on from its last good state
+    c.set_current(0.0)
+    c.set_output(True)
+    c.advance(15.0, 298.15)
+    assert c.output_on and not c.tripped and c.physics_steps > 0
 
 
 def test_error_queue_overflow() -> None:
