@@ -45,6 +45,8 @@ from drivers.virtual.physics import CellPhysics, Effect, EquivalentCircuitCell, 
 log = logging.getLogger("drivers.virtual")
 
 LOOPBACK = "127.0.0.1"
+#: [s] virtual time advanced in one piece: between pieces a stopping lab's ticker gives up its catch-up
+CATCH_UP_PIECE_S = 10.0
 CLOCK_MODES = ("free", "lockstep")
 
 
@@ -269,8 +271,14 @@ class VirtualLab:
         self._advance_to(t)
 
     def _advance_to(self, t: float) -> None:
-        if t <= self._t:
-            return
+        """Advance to ``t`` in pieces of at most :data:`CATCH_UP_PIECE_S`; the ticker gives up between two pieces
+        once the lab is stopping (a physics slower than the clock owes ever more: a catch-up could outlast stop())."""
+        while self._t < t:
+            if self._stop.is_set() and threading.current_thread() is self._ticker:
+                return
+            self._advance_piece(min(t, self._t + CATCH_UP_PIECE_S))
+
+    def _advance_piece(self, t: float) -> None:
         T_start = self.chamber.T_air_K
         self.chamber.advance(t)
         self.cycler.advance(t, 0.5 * (T_start + self.chamber.T_air_K))

@@ -25,7 +25,7 @@ from drivers.virtual.faults import DeviceFaultPlan
 from drivers.virtual.instruments import ChamberConfig
 from drivers.virtual.lab import VirtualLab, VirtualLabConfig
 from drivers.virtual.noise import NOISELESS
-from drivers.virtual.physics import CellLimits, ContactResistance
+from drivers.virtual.physics import CellLimits, ContactResistance, EquivalentCircuitCell
 from protocols.errors import InputError
 
 
@@ -141,7 +141,7 @@ def test_f4t_over_modbus_tcp_first_order_air(make_lab) -> None:  # noqa: ANN001
         reading = ch.read()
         t_after = lab.clock.now()
         assert model(t_before) - 0.05 <= reading <= model(t_after) + 0.05
-        time.sleep(0.005)
+        time.sleep(0.02)
     ch.set_point(30.0)
     assert lab.chamber.sp_K == pytest.approx(303.15)
     with pytest.raises(InputError, match="outside the loop range"):
@@ -376,3 +376,25 @@ def test_a_lock_step_lab_moves_only_as_its_host_sleeps(make_lab) -> None:  # noq
     with pytest.raises(ValueError, match="clock 'stopped'"):
         VirtualLab(None, VirtualLabConfig(clock="stopped"))
     cyc.close()
+
+
+class _SlowCell(EquivalentCircuitCell):
+    """A stand-in cell that takes 50 ms of real time per virtual second: at 1000x it cannot keep up with the clock."""
+
+    def step(self, current_A: float, dt_s: float, ambient_K: float) -> tuple[float, float]:
+        time.sleep(0.05 * dt_s)
+        return super().step(current_A, dt_s, ambient_K)
+
+
+def test_a_lab_whose_physics_falls_behind_its_clock_still_stops() -> None:
+    cfg = VirtualLabConfig(speed=1000.0, cycler_port=None, modbus_port=None, modbus_rtu_port=None, espec_port=None)
+    lab = VirtualLab(_SlowCell(), cfg).start()
+    # each catch-up owes 50x the real time of the last one: after 10 ms, 0.5 s, then 25 s; stop during the third
+    time.sleep(2.0)
+    t0 = time.monotonic()
+    lab.stop()
+    assert lab._ticker is not None
+    assert not lab._ticker.is_alive(), "the ticker was still catching up after stop()"
+    assert time.monotonic() - t0 < 2.5
+    assert lab.lock.acquire(timeout=1.0), "the lab's lock was still held after stop()"
+    lab.lock.release()
