@@ -73,15 +73,24 @@ def plan_groups(plan: Path) -> list[tuple[list[str], set[str]]]:
     return [(list(g.parameters), set(g.selected)) for g in design_groups(plan)]
 
 
-def stages(params: str, plan: str | Path | None, experiments: list[Any]) -> list[Any]:
-    """Stages of the cumulative fit: from the plan's design summary, or ``params`` (table9 | all | NAMES)."""
+def stages(
+    params: str | None,
+    plan: str | Path | None,
+    experiments: list[Any],
+    groups: Sequence[tuple[Sequence[str], set[str]]] | None = None,
+) -> list[Any]:
+    """Stages of the cumulative fit: from the plan's design summary, else the given ``groups`` (parameters,
+    selected library ids; e.g. a run log's), else ``params`` (table9 | all | NAMES; None: table9). An experiment
+    belongs to the group that selected its profile's ``library_id``; the ones no group selected join stage 1."""
     from battlab import parameters
     from battlab.identify.fit import Stage
 
     if plan is not None:
+        groups = plan_groups(Path(plan))
+    if groups is not None:
         out = []
         used: set[str] = set()
-        for names, selected in plan_groups(Path(plan)):
+        for names, selected in groups:
             exps = tuple(e for e in experiments if str(e.profile.params.get("library_id", e.name)) in selected)
             used |= {e.name for e in exps}
             out.append(Stage(tuple(names), exps))
@@ -89,7 +98,7 @@ def stages(params: str, plan: str | Path | None, experiments: list[Any]) -> list
         if out and rest:
             out[0] = Stage(out[0].names, out[0].experiments + rest)
         return out
-    p = params.strip()
+    p = (params or "table9").strip()
     if p == "table9":
         return [Stage(g, tuple(experiments) if k == 0 else ()) for k, g in enumerate(parameters.TABLE9_GROUPS)]
     names = list(parameters.NAMES) if p == "all" else [s.strip() for s in p.split(",") if s.strip()]
@@ -173,7 +182,7 @@ def fit(
     cell: Cell | str,
     *,
     plan: str | Path | None = None,
-    params: str = "table9",
+    params: str | None = "table9",
     ocp_terms: int = 0,
     rated_capacity: float | None = None,
     soc0: float | None = None,
@@ -186,8 +195,11 @@ def fit(
     output: str | Path | None = None,
 ) -> FitReport:
     """Identify the cell's parameters from logged data: equilibrium from an OCV test, then the dynamic
-    parameters by weighted LM, group by group and cumulatively (stages from ``plan`` or ``params``).
+    parameters by weighted LM, group by group and cumulatively (stages from ``plan``, else ``params``; ``params``
+    None: the groups of the run log's plan when a run log has one, else table9).
     ``ambient`` [K]: for data that do not log it (see :data:`Ambient`); such data are refused otherwise.
+    A run log (with its plan in its metadata, or ``plan``) is cut at its plan's profile steps, one experiment each
+    (:mod:`battlab.identify.runlog`).
 
     ``output`` (the BPX path; ``summary.json`` beside it): the report is written there after every stage, before
     ``on_stage`` is called, marked partial (``summary["partial"]`` True, ``"status": "partial: stages 1–3 of 4"``,
@@ -197,12 +209,14 @@ def fit(
     called then (after that write, or without stages after the final one). A failure in a stage raises
     :class:`StageFailed` naming it, with the finished stages (or the equilibrium fit) kept on disk."""
     from battlab.identify import fit as F
+    from battlab.identify import runlog
     from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
-    from battlab.identify.experiments import experiments_from_data
     from battlab.identify.forward import ForwardModel
+    from battlab.io.plan import Plan
 
     cell = cell if isinstance(cell, Cell) else Cell.load(cell)
     check_ambient_keys(data, ambient)
+    plan_obj = Plan.load(plan) if plan is not None else None
     loaded, warned = load_all(data, fix_sign=fix_sign)
     ocv = [d for d in loaded if is_ocv_test(d, float(cell["Q_nom"]))]
     dyn = [d for d in loaded if d not in ocv]
@@ -232,10 +246,16 @@ def fit(
         cell = cell.with_values(Q_nom=rated_capacity)
     if dyn:
         exps = [
-            e for d in dyn for e in experiments_from_data(d, cell, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
+            e
+            for d in dyn
+            for e in runlog.experiments(
+                d, cell, plan=plan_obj, plan_name=str(plan), dt=dt, soc0=soc0, ambient=ambient_of(d, ambient)
+            )
         ]
         fm = ForwardModel(cell, v_margin=0.15)
-        plan_stages = stages(params, plan, exps)
+        logged = runlog.logged_groups(dyn) if plan is None and params is None else None
+        groups = [(g.parameters, set(g.selected)) for g in logged] if logged is not None else None
+        plan_stages = stages(params, plan, exps, groups)
         base_summary, base_extra = copy.deepcopy(summary), copy.deepcopy(extra)
 
         def stage_done(k: int, res: Any) -> None:
@@ -308,6 +328,7 @@ def _summarise_dynamic(results: list[Any], summary: dict[str, Any], extra: dict[
         extra["invariants"] = {
             i.name: {"value": i.value, "ci95": list(i.ci95), "definition": i.definition} for i in st.invariants
         }
+
     if st.unidentifiable:
         extra["not_identifiable"] = list(st.unidentifiable)
         extra["null_space"] = [dict(d) for d in st.null_space]

@@ -1,0 +1,58 @@
+"""A run log is fitted on its plan's structure: one experiment per executed profile step, tagged with its library
+id, so that the design's groups become the fit's stages."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from battlab import Cell, InputError
+from battlab.identify import runlog, workflow
+from battlab.io.data import load_data
+
+
+def test_a_run_log_is_cut_at_its_profile_steps(tmp_path: Path, run_log) -> None:
+    log, _ = run_log(tmp_path / "run.h5")
+    data = load_data(log)
+    exps = runlog.experiments(data, Cell.load("nca18650"))
+    assert [e.name for e in exps] == ["run:28", "run:37"]
+    assert [e.profile.params["library_id"] for e in exps] == ["28", "37"]
+    for e in exps:  # the 600 s profile alone, from the SOC of the rest before it
+        assert e.soc0 == pytest.approx(0.8, abs=1e-3)
+        assert e.profile.duration == pytest.approx(600.0, abs=1.0)
+    groups = runlog.logged_groups([data])
+    stages = workflow.stages(None, None, exps, [(g.parameters, set(g.selected)) for g in groups])
+    assert [[e.name for e in s.experiments] for s in stages[:2]] == [["run:28"], ["run:37"]]
+    assert stages[0].names == ("R_s_n", "R_s_p")  # labels 'group k' with Table 9's groups
+
+
+def test_repeated_profiles_are_one_experiment_per_trial(tmp_path: Path, run_log) -> None:
+    log, _ = run_log(tmp_path / "run.h5", ids=(28,), repeat=2)
+    exps = runlog.experiments(load_data(log), Cell.load("nca18650"))
+    assert [e.name for e in exps] == ["run:28t1", "run:28t2"]
+    assert [e.profile.params["trial"] for e in exps] == [1, 2]
+
+
+def test_the_given_plan_must_be_the_one_that_ran(tmp_path: Path, run_log) -> None:
+    from battlab.io.plan import Plan
+
+    log, _ = run_log(tmp_path / "run.h5")
+    (tmp_path / "other").mkdir()
+    _, other = run_log(tmp_path / "other" / "run.h5", ids=(37, 28))
+    with pytest.raises(InputError, match=r"run\.h5: the run's plan is not .*step 5 runs profile 28 in the log"):
+        runlog.experiments(load_data(log), Cell.load("nca18650"), plan=Plan.load(other), plan_name=str(other))
+
+
+def test_the_runner_keeps_the_design_groups_in_the_log(tmp_path: Path, run_log) -> None:
+    """The groups the runner copied from the plan's design summary decide the stages of `fit RUN.h5` alone."""
+    import h5py
+
+    log, _ = run_log(tmp_path / "run.h5")
+    groups = [{"parameters": ["R_s_p"], "selected": ["37"]}, {"parameters": ["R_s_n"], "selected": ["28"]}]
+    with h5py.File(log, "a") as f:
+        meta = json.loads(f.attrs["meta"])
+        f.attrs["meta"] = json.dumps({**meta, "design_groups": groups})
+    found = runlog.logged_groups([load_data(log)])
+    assert [(g.parameters, set(g.selected)) for g in found] == [(("R_s_p",), {"37"}), (("R_s_n",), {"28"})]
