@@ -14,7 +14,7 @@ import json
 import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -193,13 +193,15 @@ def fit(
     on_stage: Callable[[int, Any], None] | None = None,
     on_equilibrium: Callable[[str, Any], None] | None = None,
     output: str | Path | None = None,
+    hold_radii: bool = True,
 ) -> FitReport:
     """Identify the cell's parameters from logged data: equilibrium from an OCV test, then the dynamic
     parameters by weighted LM, group by group and cumulatively (stages from ``plan``, else ``params``; ``params``
     None: the groups of the run log's plan when a run log has one, else table9).
     ``ambient`` [K]: for data that do not log it (see :data:`Ambient`); such data are refused otherwise.
     A run log (with its plan in its metadata, or ``plan``) is cut at its plan's profile steps, one experiment each
-    (:mod:`battlab.identify.runlog`).
+    (:mod:`battlab.identify.runlog`). ``hold_radii``: where a stage would estimate all four orbit parameters of an
+    electrode, its R_s is held and the invariants are reported (:mod:`battlab.identify.reduced`).
 
     ``output`` (the BPX path; ``summary.json`` beside it): the report is written there after every stage, before
     ``on_stage`` is called, marked partial (``summary["partial"]`` True, ``"status": "partial: stages 1–3 of 4"``,
@@ -277,7 +279,14 @@ def fit(
             if on_equilibrium is not None:
                 on_equilibrium(report.equilibrium_data, report.equilibrium)
         try:
-            F.fit_groupwise(cell, plan_stages, options=F.Options(max_nfev=max_iter), forward=fm, progress=stage_done)
+            fit_stages(
+                cell,
+                plan_stages,
+                options=F.Options(max_nfev=max_iter),
+                forward=fm,
+                progress=stage_done,
+                hold_radii=hold_radii,
+            )
         except F.StageError as exc:
             raise StageFailed(exc.stage, exc.total, exc.cause, report, written, kept) from exc.cause
     else:
@@ -290,6 +299,46 @@ def fit(
         if report.equilibrium is not None and on_equilibrium is not None:
             on_equilibrium(report.equilibrium_data, report.equilibrium)
     return report
+
+
+def fit_stages(
+    cell: Cell,
+    stages: Sequence[Any],
+    *,
+    options: Any = None,
+    forward: Any = None,
+    progress: Callable[[int, Any], None] | None = None,
+    hold_radii: bool = True,
+) -> list[Any]:
+    """The cumulative group-wise fit of :func:`battlab.identify.fit.fit_groupwise` (stage k fits groups 1..k on
+    the experiments of stages 1..k from where stage k − 1 ended), in the identifiable coordinates when
+    ``hold_radii``: the R_s of an electrode whose R_s, D_s, k, R_f are all fitted is held at the stage's start
+    value (:mod:`battlab.identify.reduced`). Errors in stage k are raised as
+    :class:`battlab.identify.fit.StageError` with the finished stages."""
+    from battlab.identify import fit as F
+    from battlab.identify import reduced
+    from battlab.identify.forward import ForwardModel
+
+    fm = forward or ForwardModel(cell)
+    current = cell
+    names: list[str] = []
+    exps: list[Any] = []
+    results: list[Any] = []
+    for k, stg in enumerate(stages, start=1):
+        names += [n for n in stg.names if n not in names]
+        exps += list(stg.experiments)
+        fitted, held = reduced.split(names) if hold_radii else (list(names), [])
+        try:
+            res = F.fit(cell, exps, fitted, options=options, forward=fm, start=current, stage=k)
+            if held:
+                res = replace(res, statistics=reduced.with_held(res.statistics, reduced.held_values(current, held)))
+            if progress is not None:
+                progress(k, res)
+        except Exception as exc:
+            raise F.StageError(k, len(stages), names, results, exc) from exc
+        results.append(res)
+        current = res.cell
+    return results
 
 
 def _summarise_equilibrium_only(summary: dict[str, Any], extra: dict[str, Any], total: int) -> None:
@@ -328,7 +377,10 @@ def _summarise_dynamic(results: list[Any], summary: dict[str, Any], extra: dict[
         extra["invariants"] = {
             i.name: {"value": i.value, "ci95": list(i.ci95), "definition": i.definition} for i in st.invariants
         }
-
+        summary["invariants"] = copy.deepcopy(extra["invariants"])
+    held = [n for n in (e.name for e in st.estimates) if n not in last.names]
+    if held:
+        summary["held"] = {e.name: e.value for e in st.estimates if e.name in held}
     if st.unidentifiable:
         extra["not_identifiable"] = list(st.unidentifiable)
         extra["null_space"] = [dict(d) for d in st.null_space]
