@@ -4,8 +4,9 @@ The runner logs, for every sample, the step execution (``Step Count / 1``), the 
 (``Step Index / 1``) and the trial of a repeated profile (``Cycle Count / 1``), and stores the plan it ran in the
 log's metadata (``meta["plan"]``, profiles inline). A run log read with its plan is therefore cut into the profile
 steps it executed: each is an experiment of its own, named ``<log>:<profile id>`` (``t<trial>`` appended when the
-plan repeats profiles; ``#n`` when gaps split it), whose profile carries the plan's ``library_id``, so that the
-design's groups (the library ids each group selected) become the fit's stages. The steps that bring the cell to
+plan repeats profiles; ``s<step>`` when a profile runs at several steps; ``#n`` when gaps split it), whose profile
+carries the plan's ``library_id`` (and ``group`` from a step labelled 'group k: ...'), so that the design's groups
+(the library ids each group selected) become the fit's stages. The steps that bring the cell to
 each profile's start SOC (CCCV, rests) and the rest after it are not fitted.
 
 Start state of a profile: the last step before it that sets the cell's state (:func:`state_steps`: a charge to
@@ -19,6 +20,7 @@ execution.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -44,6 +46,7 @@ class ProfileRun:
     profile_id: str
     start: int
     stop: int
+    group: int | None = None  # the design group of the step's label 'group k: ...'
 
 
 def logged_plan(data: LoggedData) -> Plan | None:
@@ -74,7 +77,9 @@ def profile_runs(data: LoggedData, plan: Plan) -> list[ProfileRun]:
         j, tr = int(index[a]), int(trial[a])
         if not 1 <= j <= len(steps) or not isinstance(steps[j - 1], ProfileStep):
             continue
-        found[(j, tr)] = ProfileRun(j, tr, str(steps[j - 1].profile.id), int(a), int(b))
+        m = re.match(r"group (\d+)\b", steps[j - 1].label or "")
+        group = int(m.group(1)) if m else None
+        found[(j, tr)] = ProfileRun(j, tr, str(steps[j - 1].profile.id), int(a), int(b), group)
     return sorted(found.values(), key=lambda r: r.start)
 
 
@@ -151,7 +156,9 @@ def plan_experiments(
             rest_current=rest_current,
             ambient=ambient,
         )
-        tags = {"library_id": r.profile_id, "step_index": r.step_index, "trial": r.trial}
+        tags: dict[str, Any] = {"library_id": r.profile_id, "step_index": r.step_index, "trial": r.trial}
+        if r.group is not None:
+            tags["group"] = r.group
         out += [replace(e, profile=e.profile.with_meta(params={**e.profile.params, **tags})) for e in exps]
     return out
 

@@ -80,24 +80,32 @@ def stages(
     groups: Sequence[tuple[Sequence[str], set[str]]] | None = None,
 ) -> list[Any]:
     """Stages of the cumulative fit: from the plan's design summary, else the given ``groups`` (parameters,
-    selected library ids; e.g. a run log's), else ``params`` (table9 | all | NAMES; None: table9). An experiment
-    belongs to the group that selected its profile's ``library_id``; the ones no group selected join stage 1."""
+    selected library ids; e.g. a run log's), else ``params`` (table9 | all | NAMES; None: table9). Each experiment
+    joins one stage: that of its run log step's ``group`` when that group selected its profile's ``library_id``,
+    else the first group that selected it, else stage 1 (the fit is cumulative: later stages see it too)."""
     from battlab import parameters
     from battlab.identify.fit import Stage
 
     if plan is not None:
         groups = plan_groups(Path(plan))
     if groups is not None:
-        out = []
-        used: set[str] = set()
-        for names, selected in groups:
-            exps = tuple(e for e in experiments if str(e.profile.params.get("library_id", e.name)) in selected)
-            used |= {e.name for e in exps}
-            out.append(Stage(tuple(names), exps))
-        rest = tuple(e for e in experiments if e.name not in used)
-        if out and rest:
-            out[0] = Stage(out[0].names, out[0].experiments + rest)
-        return out
+        groups = list(groups)
+
+        def lib_id(e: Any) -> str:
+            return str(e.profile.params.get("library_id", e.name))
+
+        home: dict[int, int] = {}  # experiment (by position) -> its group (0-based); each experiment in one stage
+        for i, e in enumerate(experiments):  # a run log's profile step labelled 'group k' that group k selected
+            k = e.profile.params.get("group")
+            if isinstance(k, int) and 1 <= k <= len(groups) and lib_id(e) in groups[k - 1][1]:
+                home[i] = k - 1
+        for i, e in enumerate(experiments):  # else the first group that selected its profile; else stage 1
+            if i not in home:
+                home[i] = next((k for k, (_, sel) in enumerate(groups) if lib_id(e) in sel), 0)
+        return [
+            Stage(tuple(names), tuple(e for i, e in enumerate(experiments) if home[i] == k))
+            for k, (names, _) in enumerate(groups)
+        ]
     p = (params or "table9").strip()
     if p == "table9":
         return [Stage(g, tuple(experiments) if k == 0 else ()) for k, g in enumerate(parameters.TABLE9_GROUPS)]

@@ -56,3 +56,15 @@ def test_the_runner_keeps_the_design_groups_in_the_log(tmp_path: Path, run_log) 
         f.attrs["meta"] = json.dumps({**meta, "design_groups": groups})
     found = runlog.logged_groups([load_data(log)])
     assert [(g.parameters, set(g.selected)) for g in found] == [(("R_s_p",), {"37"}), (("R_s_n",), {"28"})]
+
+
+def test_a_profile_selected_by_several_groups_is_fitted_once_per_run(tmp_path: Path, run_log) -> None:
+    """The design may select one profile in several groups (the plan then runs it once per group): each run of it
+    joins the stage of its own group, none is counted twice."""
+    log, _ = run_log(tmp_path / "run.h5", ids=(28, 28))
+    data = load_data(log)
+    exps = runlog.experiments(data, Cell.load("nca18650"))
+    assert [e.name for e in exps] == ["run:28s5", "run:28s9"]
+    groups = [(("R_s_n",), {"28"}), (("R_s_p",), {"28"})]
+    stages = workflow.stages(None, None, exps, groups)
+    assert [[e.name for e in s.experiments] for s in stages] == [["run:28s5"], ["run:28s9"]]
