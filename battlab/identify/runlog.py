@@ -164,19 +164,32 @@ def plan_experiments(
 
 
 def logged_groups(loaded: Sequence[LoggedData]) -> list[DesignGroup] | None:
-    """The design groups of the first run log that has a plan: those the runner stored with it (from the plan's
-    design summary), else the plan's profile labels with the paper's Table 9 groups; None without a run log."""
+    """The design groups of the run logs that have a plan, merged (group k: the first log's parameters, the
+    profiles every log's group k selected): each log's groups are those the runner stored with it (from the plan's
+    design summary), else its plan's profile labels with the paper's Table 9 groups; None without a run log.
+    Several logs are e.g. the groups of a sequential design, each run from its own plan."""
+    merged: list[DesignGroup] = []
+    found = False
     for d in loaded:
+        groups: list[DesignGroup] | None = None
         stored = d.meta.get(DESIGN_GROUPS)
         if stored:
             try:
-                return groups_from_dicts(stored)
+                groups = groups_from_dicts(stored)
             except (KeyError, TypeError):
-                pass
-        plan = logged_plan(d)
-        if plan is not None and has_structure(d):
-            return label_groups(plan.protocol)
-    return None
+                groups = None
+        if groups is None:
+            plan = logged_plan(d)
+            if plan is None or not has_structure(d):
+                continue
+            groups = label_groups(plan.protocol)
+        found = True
+        for k, g in enumerate(groups):
+            if k < len(merged):
+                merged[k] = DesignGroup(merged[k].parameters, merged[k].selected | g.selected)
+            else:
+                merged.append(g)
+    return merged if found else None
 
 
 def experiments(

@@ -68,3 +68,26 @@ def test_a_profile_selected_by_several_groups_is_fitted_once_per_run(tmp_path: P
     groups = [(("R_s_n",), {"28"}), (("R_s_p",), {"28"})]
     stages = workflow.stages(None, None, exps, groups)
     assert [[e.name for e in s.experiments] for s in stages] == [["run:28s5"], ["run:28s9"]]
+
+
+def test_the_groups_of_several_run_logs_are_merged(tmp_path: Path, run_log) -> None:
+    """Two run logs of two plans (group 1's profile, then group 2's, as a sequential design runs them): group k
+    holds the profiles every log's group k selected, so each log's profile joins its own stage."""
+    from battlab.design.plan import grouped_protocol, ocv_table
+    from battlab.io.logs import open_log
+    from protocols import Library
+
+    first, _ = run_log(tmp_path / "run.h5", ids=(28,))
+    data = load_data(first)
+    # the same rows, run from a plan whose profile step is labelled group 2 and runs profile 37's id
+    proto = grouped_protocol("second", [(2, [Library.build()[37]])], "test", ocv_table(Cell.load("nca18650")))
+    meta = {**data.meta, "plan": {**proto.to_dict(), "run": {}}}
+    second = tmp_path / "second.h5"
+    with open_log(second, list(data.columns), meta) as w:
+        w.append(dict(data.columns))
+    logs = [data, load_data(second)]
+    groups = runlog.logged_groups(logs)
+    assert [set(g.selected) for g in groups[:2]] == [{"28"}, {"37"}]
+    exps = [e for d in logs for e in runlog.experiments(d, Cell.load("nca18650"))]
+    stages = workflow.stages(None, None, exps, [(g.parameters, set(g.selected)) for g in groups])
+    assert [[e.name for e in s.experiments] for s in stages[:2]] == [["run:28"], ["second:37"]]
