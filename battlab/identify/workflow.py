@@ -113,6 +113,19 @@ def stages(
     return [Stage(parameters.check_names(names), tuple(experiments))]
 
 
+def unique_names(experiments: list[Any]) -> list[Any]:
+    """The experiments with unique names: a name met again (data files of the same name from different
+    directories, e.g. the run logs of a sequential design) gets ``~2``, ``~3``, … in the order given (the summary's
+    RMSE and the stages' experiment lists are keyed by name)."""
+    seen: dict[str, int] = {}
+    out = []
+    for e in experiments:
+        n = seen.get(e.name, 0) + 1
+        seen[e.name] = n
+        out.append(e if n == 1 else replace(e, name=f"{e.name}~{n}"))
+    return out
+
+
 @dataclass
 class FitReport:
     """A fit's outcome: the identified cell, the machine-readable summary, the BPX metadata, the stages."""
@@ -262,6 +275,7 @@ def fit(
                 d, cell, plan=plan_obj, plan_name=str(plan), dt=dt, soc0=soc0, ambient=ambient_of(d, ambient)
             )
         ]
+        exps = unique_names(exps)
         fm = ForwardModel(cell, v_margin=0.15)
         logged = runlog.logged_groups(dyn) if plan is None and params is None else None
         groups = [(g.parameters, set(g.selected)) for g in logged] if logged is not None else None

@@ -91,3 +91,14 @@ def test_the_groups_of_several_run_logs_are_merged(tmp_path: Path, run_log) -> N
     exps = [e for d in logs for e in runlog.experiments(d, Cell.load("nca18650"))]
     stages = workflow.stages(None, None, exps, [(g.parameters, set(g.selected)) for g in groups])
     assert [[e.name for e in s.experiments] for s in stages[:2]] == [["run:28"], ["second:37"]]
+
+
+def test_run_logs_of_the_same_name_keep_apart(tmp_path: Path, run_log) -> None:
+    """Two run logs named run.h5 in two directories (a sequential design's): their experiments get distinct
+    names, so the summary's RMSE and the stages list both."""
+    logs = []
+    for d in ("a", "b"):
+        (tmp_path / d).mkdir()
+        logs.append(load_data(run_log(tmp_path / d / "run.h5", ids=(28,))[0]))
+    exps = workflow.unique_names([e for d in logs for e in runlog.experiments(d, Cell.load("nca18650"))])
+    assert [e.name for e in exps] == ["run:28", "run:28~2"]
