@@ -246,14 +246,19 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--seeds", type=int, default=0, help="repeat run and fit for seeds 0..N-1 (coverage)")
     ap.add_argument("--sequential", action="store_true", help="also the sequential design (see above)")
+    ap.add_argument("--sequential-only", action="store_true", help="the sequential design alone")
     ap.add_argument("--workdir", default=None)
     a = ap.parse_args()
     work = Path(a.workdir or tempfile.mkdtemp(prefix="bench_loop-"))
     work.mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("BATTLAB_HOME", str(work / "home"))
     print(f"work directory {work}")
-    plan = design(work, [int(x) for x in a.ids.split(",")], a.M, a.groups or None)
     seeds = list(range(a.seeds)) if a.seeds else [a.seed]
+    if a.sequential_only:
+        seq = sequential(work, [int(x) for x in a.ids.split(",")], a.M, a.max_iter, seeds[-1], a.speed)
+        print(f"mean |log10 error|: sequential {seq:.3f} (seed {seeds[-1]})")
+        return
+    plan = design(work, [int(x) for x in a.ids.split(",")], a.M, a.groups or None)
     tally: dict[str, list[bool]] = {}
     one_shot = float("nan")
     for seed in seeds:
