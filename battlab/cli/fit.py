@@ -3,9 +3,12 @@ from logged data, score cells on held-out data).
 
 DATA: our HDF5 run logs (``.h5``), BDF CSV (``.csv``, optional ``.summary.json`` sidecar) or Panasonic ``.mat``.
 A slow test (|I| ≤ C/10 for at least 5 h) is taken as the OCV test for the equilibrium fit; the others are
-dynamic data. Outputs: the BPX cell (intervals and fit report under "User-defined") and ``<cell>.summary.json``
-next to it: ``{"parameters": {name: {"value", "ci95": [lo, hi], "at_bound"}}, "rmse_mV": {data: value},
-"converged": bool, ...}``.
+dynamic data. A run log is cut at the profile steps of the plan it ran (kept in its metadata; ``--plan`` must be
+that plan): one experiment per profile, named ``<log>:<profile id>``, and the design's groups (from ``--plan``'s
+summary, else those the runner kept in the log) are the stages.
+
+Outputs: the BPX cell (intervals and fit report under "User-defined") and ``<cell>.summary.json`` next to it:
+``{"parameters": {name: {"value", "ci95": [lo, hi], "at_bound"}}, "rmse_mV": {data: value}, "converged": bool, ...}``.
 """
 
 from __future__ import annotations
@@ -39,9 +42,9 @@ AMBIENT_OPTION = click.option(
     "--params",
     "--groups",
     "params",
-    default="table9",
-    show_default=True,
-    help="Without a plan: 'table9' (paper's groups, cumulative), 'all', or comma-separated names.",
+    default=None,
+    help="Without a plan: 'table9' (paper's groups, cumulative), 'all', or comma-separated names [default: the "
+    "groups of a run log's plan, else table9].",
 )
 @click.option(
     "--ocp-terms",
@@ -62,7 +65,7 @@ def fit(
     data: tuple[str, ...],
     cell_name: str,
     plan: str | None,
-    params: str,
+    params: str | None,
     ocp_terms: int,
     rated_capacity: float | None,
     soc0: float | None,

@@ -96,27 +96,36 @@ FULL_V_TOL = 0.015
 LONG_REST_S = 1800.0
 
 
-def logged_start(data: LoggedData, cell: Cell, i_rest: float) -> tuple[int, float, str] | None:
-    """The first step of a log with steps (``Step Count / 1``) that sets the cell's state, as (the first sample
-    after it, the SOC there, what set it), or None: a charge that ends within :data:`FULL_V_TOL` of V_max with the
+def state_steps(data: LoggedData, cell: Cell, i_rest: float) -> list[tuple[int, float, str]]:
+    """The steps of a log with steps (``Step Count / 1``) that set the cell's state, in order, as (the first sample
+    after the step, the SOC there, what set it): a charge that ends within :data:`FULL_V_TOL` of V_max with the
     current tapered below C/20 (a CCCV or CV to V_max) leaves SOC 1; a rest (|I| ≤ ``i_rest`` [A]) of at least
-    :data:`LONG_REST_S` leaves the SOC whose OCV is its last voltage."""
+    :data:`LONG_REST_S` (from its first sample to the next step's) leaves the SOC whose OCV is its last voltage.
+    Only steps with data after them count."""
     steps = data.columns.get(STEP)
     if steps is None or len(data) < 2:
-        return None
+        return []
     edges = np.flatnonzero(np.diff(steps) != 0) + 1
     starts = np.concatenate([[0], edges])
     ends = np.concatenate([edges, [len(data)]])
     v_max, taper = float(cell["V_max"]), float(cell["Q_nom"]) / 20
     lo, hi = float(cell.ocv(0.0)), float(cell.ocv(1.0))
+    out = []
     for a, b in zip(starts[:-1], ends[:-1], strict=True):  # a step with data after it
         i, v = data.current[a:b], data.voltage[a:b]
         if i.max() > i_rest and abs(float(v[-1]) - v_max) <= FULL_V_TOL and 0 <= float(i[-1]) <= taper:
-            return int(b), 1.0, f"the charge to {v_max:g} V ending at {float(data.t[b - 1]):.0f} s (SOC 1)"
-        if np.all(np.abs(i) <= i_rest) and float(data.t[b - 1] - data.t[a]) >= LONG_REST_S:
+            out.append((int(b), 1.0, f"the charge to {v_max:g} V ending at {float(data.t[b - 1]):.0f} s (SOC 1)"))
+        elif np.all(np.abs(i) <= i_rest) and float(data.t[b] - data.t[a]) >= LONG_REST_S:  # until the next step
             soc = cell.soc_from_voltage(float(np.clip(v[-1], lo, hi)))
-            return int(b), soc, f"the rest ending at {float(data.t[b - 1]):.0f} s ({float(v[-1]):.4f} V, SOC {soc:.3f})"
-    return None
+            how = f"the rest ending at {float(data.t[b - 1]):.0f} s ({float(v[-1]):.4f} V, SOC {soc:.3f})"
+            out.append((int(b), soc, how))
+    return out
+
+
+def logged_start(data: LoggedData, cell: Cell, i_rest: float) -> tuple[int, float, str] | None:
+    """The first step of a log with steps that sets the cell's state (:func:`state_steps`), or None."""
+    found = state_steps(data, cell, i_rest)
+    return found[0] if found else None
 
 
 def _from(data: LoggedData, k: int) -> LoggedData:

@@ -14,7 +14,7 @@ import json
 import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -73,33 +73,65 @@ def plan_groups(plan: Path) -> list[tuple[list[str], set[str]]]:
     return [(list(g.parameters), set(g.selected)) for g in design_groups(plan)]
 
 
-def stages(params: str, plan: str | Path | None, experiments: list[Any], cell: Cell | None = None) -> list[Any]:
-    """Stages of the cumulative fit: from the plan's design summary, or ``params`` (table9 | all | NAMES). With
+def stages(
+    params: str | None,
+    plan: str | Path | None,
+    experiments: list[Any],
+    groups: Sequence[tuple[Sequence[str], set[str]]] | None = None,
+    cell: Cell | None = None,
+) -> list[Any]:
+    """Stages of the cumulative fit: from the plan's design summary, else the given ``groups`` (parameters,
+    selected library ids; e.g. a run log's), else ``params`` (table9 | all | NAMES; None: table9). Each experiment
+    joins one stage: that of its run log step's ``group`` when that group selected its profile's ``library_id``,
+    else the first group that selected it, else stage 1 (the fit is cumulative: later stages see it too). With
     model extensions on in ``cell``, their parameters join the last stage (``all``: every parameter of ``cell``)."""
     from battlab import parameters
     from battlab.identify.fit import Stage
 
     extra = cell.parameter_names()[len(parameters.NAMES) :] if cell is not None else ()
     if plan is not None:
-        out = []
-        used: set[str] = set()
-        for names, selected in plan_groups(Path(plan)):
-            exps = tuple(e for e in experiments if str(e.profile.params.get("library_id", e.name)) in selected)
-            used |= {e.name for e in exps}
-            out.append(Stage(tuple(names), exps))
-        rest = tuple(e for e in experiments if e.name not in used)
-        if out and rest:
-            out[0] = Stage(out[0].names, out[0].experiments + rest)
+        groups = plan_groups(Path(plan))
+    if groups is not None:
+        groups = list(groups)
+
+        def lib_id(e: Any) -> str:
+            return str(e.profile.params.get("library_id", e.name))
+
+        home: dict[int, int] = {}  # experiment (by position) -> its group (0-based); each experiment in one stage
+        for i, e in enumerate(experiments):  # a run log's profile step labelled 'group k' that group k selected
+            k = e.profile.params.get("group")
+            if isinstance(k, int) and 1 <= k <= len(groups) and lib_id(e) in groups[k - 1][1]:
+                home[i] = k - 1
+        for i, e in enumerate(experiments):  # else the first group that selected its profile; else stage 1
+            if i not in home:
+                home[i] = next((k for k, (_, sel) in enumerate(groups) if lib_id(e) in sel), 0)
+        out = [
+            Stage(tuple(names), tuple(e for i, e in enumerate(experiments) if home[i] == k))
+            for k, (names, _) in enumerate(groups)
+        ]
         if out and extra:
             out[-1] = Stage(out[-1].names + tuple(extra), out[-1].experiments)
         return out
-    p = params.strip()
+    p = (params or "table9").strip()
     if p == "table9":
-        groups = list(parameters.TABLE9_GROUPS)
-        groups[-1] = groups[-1] + tuple(extra)
-        return [Stage(g, tuple(experiments) if k == 0 else ()) for k, g in enumerate(groups)]
+        table9 = list(parameters.TABLE9_GROUPS)
+        table9[-1] = table9[-1] + tuple(extra)
+        return [Stage(g, tuple(experiments) if k == 0 else ()) for k, g in enumerate(table9)]
     names = [*parameters.NAMES, *extra] if p == "all" else [s.strip() for s in p.split(",") if s.strip()]
     return [Stage(parameters.check_names(names), tuple(experiments))]
+
+
+def unique_names(experiments: list[Any]) -> list[Any]:
+    """The experiments with unique names: a name met again (data files of the same name from different
+    directories, e.g. the run logs of a sequential design) gets ``~2``, ``~3``, … in the order given (the summary's
+    RMSE and the stages' experiment lists are keyed by name)."""
+    seen: dict[str, int] = {}
+    out = []
+    for e in experiments:
+        n = seen.get(e.name, 0) + 1
+        seen[e.name] = n
+        out.append(e if n == 1 else replace(e, name=f"{e.name}~{n}"))
+    return out
 
 
 @dataclass
@@ -179,7 +211,7 @@ def fit(
     cell: Cell | str,
     *,
     plan: str | Path | None = None,
-    params: str = "table9",
+    params: str | None = "table9",
     ocp_terms: int = 0,
     rated_capacity: float | None = None,
     soc0: float | None = None,
@@ -190,10 +222,15 @@ def fit(
     on_stage: Callable[[int, Any], None] | None = None,
     on_equilibrium: Callable[[str, Any], None] | None = None,
     output: str | Path | None = None,
+    hold_radii: bool = True,
 ) -> FitReport:
     """Identify the cell's parameters from logged data: equilibrium from an OCV test, then the dynamic
-    parameters by weighted LM, group by group and cumulatively (stages from ``plan`` or ``params``).
+    parameters by weighted LM, group by group and cumulatively (stages from ``plan``, else ``params``; ``params``
+    None: the groups of the run log's plan when a run log has one, else table9).
     ``ambient`` [K]: for data that do not log it (see :data:`Ambient`); such data are refused otherwise.
+    A run log (with its plan in its metadata, or ``plan``) is cut at its plan's profile steps, one experiment each
+    (:mod:`battlab.identify.runlog`). ``hold_radii``: where a stage would estimate all four orbit parameters of an
+    electrode, its R_s is held and the invariants are reported (:mod:`battlab.identify.reduced`).
 
     ``output`` (the BPX path; ``summary.json`` beside it): the report is written there after every stage, before
     ``on_stage`` is called, marked partial (``summary["partial"]`` True, ``"status": "partial: stages 1–3 of 4"``,
@@ -203,12 +240,14 @@ def fit(
     called then (after that write, or without stages after the final one). A failure in a stage raises
     :class:`StageFailed` naming it, with the finished stages (or the equilibrium fit) kept on disk."""
     from battlab.identify import fit as F
+    from battlab.identify import runlog
     from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
-    from battlab.identify.experiments import experiments_from_data
     from battlab.identify.forward import ForwardModel
+    from battlab.io.plan import Plan
 
     cell = cell if isinstance(cell, Cell) else Cell.load(cell)
     check_ambient_keys(data, ambient)
+    plan_obj = Plan.load(plan) if plan is not None else None
     loaded, warned = load_all(data, fix_sign=fix_sign)
     ocv = [d for d in loaded if is_ocv_test(d, float(cell["Q_nom"]))]
     dyn = [d for d in loaded if d not in ocv]
@@ -238,10 +277,17 @@ def fit(
         cell = cell.with_values(Q_nom=rated_capacity)
     if dyn:
         exps = [
-            e for d in dyn for e in experiments_from_data(d, cell, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
+            e
+            for d in dyn
+            for e in runlog.experiments(
+                d, cell, plan=plan_obj, plan_name=str(plan), dt=dt, soc0=soc0, ambient=ambient_of(d, ambient)
+            )
         ]
+        exps = unique_names(exps)
         fm = ForwardModel(cell, v_margin=0.15)
-        plan_stages = stages(params, plan, exps, cell)
+        logged = runlog.logged_groups(dyn) if plan is None and params is None else None
+        groups = [(g.parameters, set(g.selected)) for g in logged] if logged is not None else None
+        plan_stages = stages(params, plan, exps, groups, cell)
         base_summary, base_extra = copy.deepcopy(summary), copy.deepcopy(extra)
 
         def stage_done(k: int, res: Any) -> None:
@@ -263,7 +309,14 @@ def fit(
             if on_equilibrium is not None:
                 on_equilibrium(report.equilibrium_data, report.equilibrium)
         try:
-            F.fit_groupwise(cell, plan_stages, options=F.Options(max_nfev=max_iter), forward=fm, progress=stage_done)
+            fit_stages(
+                cell,
+                plan_stages,
+                options=F.Options(max_nfev=max_iter),
+                forward=fm,
+                progress=stage_done,
+                hold_radii=hold_radii,
+            )
         except F.StageError as exc:
             raise StageFailed(exc.stage, exc.total, exc.cause, report, written, kept) from exc.cause
     else:
@@ -276,6 +329,46 @@ def fit(
         if report.equilibrium is not None and on_equilibrium is not None:
             on_equilibrium(report.equilibrium_data, report.equilibrium)
     return report
+
+
+def fit_stages(
+    cell: Cell,
+    stages: Sequence[Any],
+    *,
+    options: Any = None,
+    forward: Any = None,
+    progress: Callable[[int, Any], None] | None = None,
+    hold_radii: bool = True,
+) -> list[Any]:
+    """The cumulative group-wise fit of :func:`battlab.identify.fit.fit_groupwise` (stage k fits groups 1..k on
+    the experiments of stages 1..k from where stage k − 1 ended), in the identifiable coordinates when
+    ``hold_radii``: the R_s of an electrode whose R_s, D_s, k, R_f are all fitted is held at the stage's start
+    value (:mod:`battlab.identify.reduced`). Errors in stage k are raised as
+    :class:`battlab.identify.fit.StageError` with the finished stages."""
+    from battlab.identify import fit as F
+    from battlab.identify import reduced
+    from battlab.identify.forward import ForwardModel
+
+    fm = forward or ForwardModel(cell)
+    current = cell
+    names: list[str] = []
+    exps: list[Any] = []
+    results: list[Any] = []
+    for k, stg in enumerate(stages, start=1):
+        names += [n for n in stg.names if n not in names]
+        exps += list(stg.experiments)
+        fitted, held = reduced.split(names) if hold_radii else (list(names), [])
+        try:
+            res = F.fit(cell, exps, fitted, options=options, forward=fm, start=current, stage=k)
+            if held:
+                res = replace(res, statistics=reduced.with_held(res.statistics, reduced.held_values(current, held)))
+            if progress is not None:
+                progress(k, res)
+        except Exception as exc:
+            raise F.StageError(k, len(stages), names, results, exc) from exc
+        results.append(res)
+        current = res.cell
+    return results
 
 
 def _summarise_equilibrium_only(summary: dict[str, Any], extra: dict[str, Any], total: int) -> None:
@@ -314,6 +407,10 @@ def _summarise_dynamic(results: list[Any], summary: dict[str, Any], extra: dict[
         extra["invariants"] = {
             i.name: {"value": i.value, "ci95": list(i.ci95), "definition": i.definition} for i in st.invariants
         }
+        summary["invariants"] = copy.deepcopy(extra["invariants"])
+    held = [n for n in (e.name for e in st.estimates) if n not in last.names]
+    if held:
+        summary["held"] = {e.name: e.value for e in st.estimates if e.name in held}
     if st.unidentifiable:
         extra["not_identifiable"] = list(st.unidentifiable)
         extra["null_space"] = [dict(d) for d in st.null_space]

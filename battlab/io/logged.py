@@ -22,6 +22,9 @@ AMBIENT = "Ambient Temperature / degC"
 SURFACE = "Surface Temperature T1 / degC"
 STEP = "Step Count / 1"
 NET_CAPACITY = "Net Capacity / Ah"
+#: the runner's step position in the plan (1-based) and trial of a repeated profile (battlab.lab.logfile)
+STEP_INDEX = "Step Index / 1"
+CYCLE = "Cycle Count / 1"
 REQUIRED = (TIME, VOLTAGE, CURRENT)
 
 

@@ -186,6 +186,11 @@ def legacy_sidecar_paths(plan: str | Path) -> tuple[Path, Path]:
     return plan.with_name(f"{plan.stem}.design.json"), plan.with_name("summary.json")
 
 
+#: the key under which a run log's metadata holds the design's groups (the runner copies them from the plan's design
+#: summary, so that the fit of the log alone finds them)
+DESIGN_GROUPS = "design_groups"
+
+
 @dataclass(frozen=True)
 class DesignGroup:
     """One identification group of a design: its parameters and the library ids of its selected profiles."""
@@ -193,15 +198,23 @@ class DesignGroup:
     parameters: tuple[str, ...]
     selected: frozenset[str]
 
+    def to_dict(self) -> dict[str, Any]:
+        return {"parameters": list(self.parameters), "selected": sorted(self.selected)}
+
 
 def design_groups(plan: str | Path, *, library: Any = None) -> list[DesignGroup]:
     """The groups of a design plan: from ``<plan>.summary.json`` beside it (else the older ``<plan>.design.json``
     or ``summary.json``), else from the plan's profile steps labelled 'group N' with the paper's Table 9 groups.
     The plan itself must load (with or without a ``[run]`` table)."""
-    from battlab.parameters import TABLE9_GROUPS
+    loaded = Plan.load(Path(plan), library=library)
+    found = summary_groups(plan)
+    return found if found is not None else label_groups(loaded.protocol)
 
+
+def summary_groups(plan: str | Path) -> list[DesignGroup] | None:
+    """The groups of the design summary beside ``plan`` (``<plan>.summary.json``, else the older
+    ``<plan>.design.json`` or a ``summary.json`` with 'groups'), or None when there is none."""
     path = Path(plan)
-    loaded = Plan.load(path, library=library)
     fixed = path.with_name("summary.json")
     for meta in (sidecar_path(path), *legacy_sidecar_paths(path)):
         if not meta.is_file():
@@ -210,12 +223,23 @@ def design_groups(plan: str | Path, *, library: Any = None) -> list[DesignGroup]
             data = json.loads(meta.read_text())
             if meta == fixed and isinstance(data, dict) and "groups" not in data:
                 continue  # the fixed name was shared by every command: this one is not the design's
-            groups = data["groups"]
-            return [DesignGroup(tuple(g["parameters"]), frozenset(str(s) for s in g["selected"])) for g in groups]
+            return groups_from_dicts(data["groups"])
         except (KeyError, TypeError, json.JSONDecodeError) as exc:
             raise InputError(f"{meta}: expected the design summary with 'groups' ({exc})") from None
+    return None
+
+
+def groups_from_dicts(groups: Any) -> list[DesignGroup]:
+    """Groups from their summary form ``[{"parameters": [...], "selected": [ids]}, ...]``."""
+    return [DesignGroup(tuple(g["parameters"]), frozenset(str(s) for s in g["selected"])) for g in groups]
+
+
+def label_groups(protocol: Protocol) -> list[DesignGroup]:
+    """The paper's Table 9 groups, each with the profile steps labelled 'group N' (unlabelled ones: group 1)."""
+    from battlab.parameters import TABLE9_GROUPS
+
     found: list[set[str]] = [set() for _ in TABLE9_GROUPS]
-    for s in loaded.protocol.steps:
+    for s in protocol.steps:
         if isinstance(s, ProfileStep):
             label = s.label.lower()
             k = int(label.split("group", 1)[1].split()[0].strip(":")) - 1 if "group" in label else 0
@@ -224,4 +248,15 @@ def design_groups(plan: str | Path, *, library: Any = None) -> list[DesignGroup]
     return [DesignGroup(tuple(g), frozenset(sel)) for g, sel in zip(TABLE9_GROUPS, found, strict=True)]
 
 
-__all__ = ["DesignGroup", "Plan", "PlanEntry", "RunOptions", "design_groups", "sidecar_path"]
+__all__ = [
+    "DESIGN_GROUPS",
+    "DesignGroup",
+    "Plan",
+    "PlanEntry",
+    "RunOptions",
+    "design_groups",
+    "groups_from_dicts",
+    "label_groups",
+    "sidecar_path",
+    "summary_groups",
+]

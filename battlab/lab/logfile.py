@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from battlab.io.data import AMBIENT, CURRENT, NET_CAPACITY, STEP, SURFACE, TIME, VOLTAGE, LoggedData
+from battlab.io.logged import CYCLE, STEP_INDEX
 from battlab.io.logs import LogWriter, open_log, read_log
 from protocols.errors import InputError
 
@@ -29,8 +30,6 @@ log = logging.getLogger("battlab.lab")
 
 UNIX_TIME = "Unix Time / s"
 STEP_TIME = "Step Time / s"
-STEP_INDEX = "Step Index / 1"
-CYCLE = "Cycle Count / 1"
 
 #: the runner's columns (BDF names); Step Count counts step executions (a restarted step gets a new count),
 #: Step Index is the step's 1-based position in the plan, Cycle Count the trial of a repeated profile, Net Capacity

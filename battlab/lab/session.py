@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from battlab.io.data import NET_CAPACITY
+from battlab.io.plan import DESIGN_GROUPS, summary_groups
 from battlab.lab import logfile
 from battlab.lab.bench import (
     VIRTUAL,
@@ -236,6 +237,9 @@ def _start(
         resumes=[],
         interrupted=[],
     )
+    groups = _design_groups(plan_path)
+    if groups is not None:
+        meta[DESIGN_GROUPS] = [g.to_dict() for g in groups]
     return _execute(
         run_id=run_id,
         catalog=catalog,
@@ -248,6 +252,18 @@ def _start(
         display=display,
         extra_subscribers=extra_subscribers,
     )
+
+
+def _design_groups(plan_path: str | None) -> list[Any] | None:
+    """The groups of the design summary beside the plan file (None: no file, or no summary): kept in the log so
+    that ``battlab fit`` of the log alone fits the design's groups in stages."""
+    if plan_path is None:
+        return None
+    try:
+        return summary_groups(plan_path)
+    except InputError as exc:  # a damaged summary does not stop a run; the fit then needs --plan
+        log.warning("run: the plan's design groups are not kept in the log (%s)", exc)
+        return None
 
 
 def resume_run(

@@ -96,3 +96,76 @@ def _load_in_subprocess(paths: list[Path], timeout_s: float = 60.0) -> list[dict
 def load_in_subprocess() -> Callable[..., list[dict[str, object]]]:
     """``load_in_subprocess(paths, timeout_s=60)``: see :func:`_load_in_subprocess`."""
     return _load_in_subprocess
+
+
+def _run_log(path: Path, ids: tuple[int, ...] = (28, 37), repeat: int = 1, truth: bool = True) -> tuple[Path, Path]:
+    """A run log as the runner writes it (its columns, step count and index, trial, the plan in its metadata) of a
+    grouped plan of library profiles ``ids`` (profile k in group k), on nca18650 (its R_s moved to Table 4's truth
+    when ``truth``), without noise, sampled every second: the full charge tapering at 4.2 V, the rests at the OCV
+    of each profile's start SOC (SOC 0.8 for 28 and 37), the adjusting steps as ramps, the profiles simulated.
+    Returns (the log, the plan TOML written beside it)."""
+    import tomli_w
+
+    import battlab
+    from battlab import parameters as P
+    from battlab.design.plan import grouped_protocol, ocv_table
+    from battlab.io.logged import CYCLE, NET_CAPACITY, STEP, STEP_INDEX
+    from battlab.lab import logfile
+    from battlab.lab.plan import Plan, RunOptions
+    from protocols import Library
+    from protocols.protocol import CCCV, ProfileStep, Rest
+
+    cell = battlab.Cell.load("nca18650")
+    sim = cell.with_values(R_s_n=P.SPECS["R_s_n"].truth, R_s_p=P.SPECS["R_s_p"].truth) if truth else cell
+    lib = Library.build()
+    proto = grouped_protocol("loop", [(k, [lib[i]]) for k, i in enumerate(ids, start=1)], "test", ocv_table(cell))
+    plan = Plan(proto, RunOptions(repeat=repeat, stable_hold_s=0.0))
+    cols: dict[str, list[np.ndarray]] = {c: [] for c in logfile.COLUMNS}
+    t0, soc, q = 0.0, 1.0, 0.0
+    for count, entry in enumerate(plan.entries(), start=1):
+        s = entry.step
+        if isinstance(s, ProfileStep):
+            res = battlab.simulate(sim, s.profile, soc0=soc)
+            i, v = np.asarray(s.profile.current), np.asarray(res.voltage)
+        elif isinstance(s, Rest):
+            n = int(s.ends[0].value)
+            i, v = np.zeros(n), np.full(n, float(cell.ocv(soc)))
+        else:  # charge or discharge towards the next profile's start SOC (0.8): a ramp, ending at rest or tapered
+            target = float(s.label.split("SOC ")[1].split()[0])
+            v_end = 4.2 if isinstance(s, CCCV) and s.label.startswith("full") else float(cell.ocv(target))
+            sign = 1.0 if target >= soc or s.label.startswith("full") else -1.0
+            i = sign * np.r_[np.full(100, 1.35), np.linspace(1.35, 0.03, 100)]
+            v = np.r_[np.linspace(float(cell.ocv(soc)), v_end, 100), np.full(100, v_end)]
+            soc = target if not s.label.startswith("full") else 1.0
+        n = i.size
+        t = t0 + np.arange(n, dtype=float)
+        ah = q + np.concatenate([[0.0], np.cumsum(i[:-1])]) / 3600.0
+        if isinstance(s, ProfileStep):
+            soc += float(ah[-1] - q) / cell.capacity()
+        for c, x in (
+            ("Test Time / s", t),
+            ("Unix Time / s", 1.7e9 + t),
+            ("Step Time / s", t - t0),
+            ("Voltage / V", v),
+            ("Current / A", i),
+            ("Surface Temperature T1 / degC", np.full(n, 25.0)),
+            ("Ambient Temperature / degC", np.full(n, 25.0)),
+            (STEP, np.full(n, float(count))),
+            (STEP_INDEX, np.full(n, float(entry.step_index))),
+            (CYCLE, np.full(n, float(entry.trial))),
+            (NET_CAPACITY, ah),
+        ):
+            cols[c].append(x)
+        t0, q = float(t[-1]) + 1.0, float(ah[-1])
+    w = logfile.create(path, logfile.COLUMNS, {"cell": "nca18650", "plan": plan.to_dict(), "soc0": None})
+    w.append({c: np.concatenate(v) for c, v in cols.items()})
+    w.close({"status": "completed"})
+    plan_path = path.with_name("plan.toml")
+    plan_path.write_text(tomli_w.dumps(plan.to_dict()))
+    return path, plan_path
+
+
+@pytest.fixture
+def run_log() -> Callable[..., tuple[Path, Path]]:
+    """``run_log(path, ids=(28, 37), repeat=1, truth=True)``: see :func:`_run_log`."""
+    return _run_log

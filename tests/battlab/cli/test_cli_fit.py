@@ -247,3 +247,19 @@ def test_fit_with_a_bad_extension_is_one_line(tmp_path, virtual_csv) -> None:
     args = ["fit", a, "--cell", "nca18650", "--extension", "contact_resistance:Rc=1", "-o", str(tmp_path / "c.json")]
     r = CliRunner().invoke(main, args)
     assert r.exit_code == 2 and "--extension 'contact_resistance:Rc=1'" in r.output and "Traceback" not in r.output
+
+
+def test_a_run_log_is_fitted_in_its_plans_groups(tmp_path, run_log) -> None:
+    """`fit RUN.h5 --plan plan.toml` (a plan with a [run] table): each profile step of the log is an experiment of
+    its own, and the design's groups (the library ids each selected) are the stages."""
+    log, plan = run_log(tmp_path / "run.h5")
+    assert "[run]" in plan.read_text()
+    groups = [{"parameters": ["R_s_n"], "selected": [28]}, {"parameters": ["R_s_p"], "selected": [37]}]
+    (tmp_path / "plan.summary.json").write_text(json.dumps({"groups": groups}))
+    out = tmp_path / "fitted.json"
+    args = ["fit", str(log), "--cell", "nca18650", "--plan", str(plan), "--max-iter", "2", "-o", str(out)]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    stages = json.loads((tmp_path / "fitted.summary.json").read_text())["stages"]
+    assert [st["parameters"] for st in stages] == [["R_s_n"], ["R_s_n", "R_s_p"]]
+    assert [st["experiments"] for st in stages] == [["run:28"], ["run:28", "run:37"]]

@@ -121,8 +121,28 @@ def test_a_crash_in_stage_1_keeps_the_equilibrium_fit_on_disk(
 
 def test_extension_parameters_join_the_last_stage() -> None:
     cell = battlab.Cell.load("nca18650").with_extension("contact_resistance", R_c=0.002)
-    table9 = workflow.stages("table9", None, [], cell)
+    table9 = workflow.stages("table9", None, [], cell=cell)
     assert table9[-1].names[-2:] == ("contact_resistance.R_c", "contact_resistance.dRc_dT")
     assert [len(s.names) for s in table9[:-1]] == [len(g) for g in battlab.parameters.TABLE9_GROUPS[:-1]]
-    assert workflow.stages("all", None, [], cell)[0].names == cell.parameter_names()
+    assert workflow.stages("all", None, [], cell=cell)[0].names == cell.parameter_names()
     assert workflow.stages("all", None, [])[0].names == battlab.parameters.NAMES
+
+
+def test_an_electrodes_four_orbit_parameters_are_fitted_as_its_invariants(tmp_path: Path, virtual_csv) -> None:
+    """R_s, D_s, k, R_f of one electrode: R_s is held at the start cell's value (an exact reparametrisation), the
+    information matrix of the rest is regular, and the summary reports τ, κ, ρ with intervals and the four
+    parameters as set-identified."""
+    from battlab import Cell
+
+    a = virtual_csv(tmp_path, 19, 3)
+    names = "R_s_n,D_s_n,k_n,R_f_n"
+    rep = workflow.fit([a], "nca18650", params=names, max_iter=3, output=tmp_path / "fit.bpx.json")
+    st = rep.last.statistics
+    assert rep.last.names == ("D_s_n", "k_n", "R_f_n") and st.valid and not st.null_space
+    assert rep.cell["R_s_n"] == Cell.load("nca18650")["R_s_n"]
+    s = json.loads((tmp_path / "fit.summary.json").read_text())
+    assert set(s["invariants"]) == {"tau_n", "kappa_n", "rho_n"}
+    for inv in s["invariants"].values():
+        assert inv["ci95"][0] <= inv["value"] <= inv["ci95"][1]
+    assert s["held"] == {"R_s_n": pytest.approx(Cell.load("nca18650")["R_s_n"])}
+    assert all(s["parameters"][n]["set_identified"] for n in names.split(","))

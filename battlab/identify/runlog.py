@@ -1,0 +1,226 @@
+"""A run log's structure for the fit: one experiment per executed profile step of the run's plan.
+
+The runner logs, for every sample, the step execution (``Step Count / 1``), the step's 1-based position in the plan
+(``Step Index / 1``) and the trial of a repeated profile (``Cycle Count / 1``), and stores the plan it ran in the
+log's metadata (``meta["plan"]``, profiles inline). A run log read with its plan is therefore cut into the profile
+steps it executed: each is an experiment of its own, named ``<log>:<profile id>`` (``t<trial>`` appended when the
+plan repeats profiles; ``s<step>`` when a profile runs at several steps; ``#n`` when gaps split it), whose profile
+carries the plan's ``library_id`` (and ``group`` from a step labelled 'group k: ...'), so that the design's groups
+(the library ids each group selected) become the fit's stages. The steps that bring the cell to
+each profile's start SOC (CCCV, rests) and the rest after it are not fitted.
+
+Start state of a profile: the last step before it that sets the cell's state (:func:`state_steps`: a charge to
+V_max that tapered, or a rest of at least 30 min, as the design's plans have before every profile) plus the charge
+passed since (``Net Capacity / Ah``) over the cell's capacity; without such a step, the given ``soc0`` of the log's
+first sample plus the charge passed; else an error naming the profile.
+
+When the run was interrupted and resumed, a step executed more than once is taken from its last (complete)
+execution.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from battlab.cell import Cell
+from battlab.identify.experiments import experiments_from_data, state_steps
+from battlab.identify.fit import Experiment
+from battlab.io.logged import CYCLE, NET_CAPACITY, STEP, STEP_INDEX, LoggedData
+from battlab.io.plan import DESIGN_GROUPS, DesignGroup, Plan, groups_from_dicts, label_groups
+from battlab.noise import NoiseModel
+from protocols.errors import InputError
+from protocols.protocol import ProfileStep
+
+
+@dataclass(frozen=True)
+class ProfileRun:
+    """One executed profile step: its position in the plan (1-based), trial, profile id and rows [start, stop)."""
+
+    step_index: int
+    trial: int
+    profile_id: str
+    start: int
+    stop: int
+    group: int | None = None  # the design group of the step's label 'group k: ...'
+
+
+def logged_plan(data: LoggedData) -> Plan | None:
+    """The plan a run log was run from (its metadata), or None when it has none."""
+    raw = data.meta.get("plan")
+    if not isinstance(raw, dict) or "steps" not in raw:
+        return None
+    try:
+        return Plan.from_dict(raw, source=f"{data.source or data.name} (the logged plan)")
+    except InputError:
+        return None
+
+
+def has_structure(data: LoggedData) -> bool:
+    """Whether the log has the runner's step columns."""
+    return all(c in data.columns for c in (STEP, STEP_INDEX, CYCLE))
+
+
+def profile_runs(data: LoggedData, plan: Plan) -> list[ProfileRun]:
+    """The profile steps of ``plan`` executed in the log, in the order they ran (last execution of each)."""
+    steps = plan.protocol.steps
+    count, index, trial = (np.asarray(data.columns[c]) for c in (STEP, STEP_INDEX, CYCLE))
+    edges = np.flatnonzero(np.diff(count) != 0) + 1
+    starts = np.concatenate([[0], edges]).astype(int)
+    stops = np.concatenate([edges, [len(data)]]).astype(int)
+    found: dict[tuple[int, int], ProfileRun] = {}
+    for a, b in zip(starts, stops, strict=True):
+        j, tr = int(index[a]), int(trial[a])
+        if not 1 <= j <= len(steps) or not isinstance(steps[j - 1], ProfileStep):
+            continue
+        m = re.match(r"group (\d+)\b", steps[j - 1].label or "")
+        group = int(m.group(1)) if m else None
+        found[(j, tr)] = ProfileRun(j, tr, str(steps[j - 1].profile.id), int(a), int(b), group)
+    return sorted(found.values(), key=lambda r: r.start)
+
+
+def check_same_plan(data: LoggedData, logged: Plan, given: Plan, given_name: str) -> None:
+    """The plan given for the fit must hold the logged plan's profiles at the same steps."""
+    where = data.source or data.name
+
+    def ids(p: Plan) -> list[tuple[int, str]]:
+        return [(k, str(s.profile.id)) for k, s in enumerate(p.protocol.steps, start=1) if isinstance(s, ProfileStep)]
+
+    a, b = ids(logged), ids(given)
+    if a != b:
+        diff = next(((x, y) for x, y in zip(a, b, strict=False) if x != y), None)
+        what = (
+            f"step {diff[0][0]} runs profile {diff[0][1]} in the log, "
+            f"step {diff[1][0]} profile {diff[1][1]} in the plan"
+            if diff
+            else f"{len(a)} profile steps in the log, {len(b)} in the plan"
+        )
+        raise InputError(f"{where}: the run's plan is not {given_name} ({what})")
+
+
+def plan_experiments(
+    data: LoggedData,
+    cell: Cell,
+    plan: Plan,
+    *,
+    dt: float = 1.0,
+    noise: NoiseModel | None = None,
+    soc0: float | None = None,
+    max_gap: float = 60.0,
+    rest_current: float | None = None,
+    ambient: float | None = None,
+) -> list[Experiment]:
+    """The experiments of a run log cut at its plan's profile steps (see the module docstring)."""
+    where = data.source or data.name
+    runs = profile_runs(data, plan)
+    if not runs:
+        raise InputError(f"{where}: no profile step of its plan was run (nothing to fit)")
+    i_rest = rest_current if rest_current is not None else 0.01 * float(cell["Q_nom"])
+    states = state_steps(data, cell, i_rest)
+    ah = data.columns.get(NET_CAPACITY)
+    if ah is None:
+        ah = np.concatenate([[0.0], np.cumsum(data.current[:-1] * np.diff(data.t))]) / 3600.0
+    cap = cell.capacity()
+    ids = [r.profile_id for r in runs]
+    repeated = plan.options.repeat > 1
+    out: list[Experiment] = []
+    for r in runs:
+        before = [s for s in states if s[0] <= r.start]
+        if before:
+            row, soc_set, _ = before[-1]
+            start = soc_set + float(ah[r.start] - ah[row]) / cap
+        elif soc0 is not None:
+            start = soc0 + float(ah[r.start] - ah[0]) / cap
+        else:
+            raise InputError(
+                f"{where}: profile {r.profile_id} (plan step {r.step_index}) follows no full charge or rest of at "
+                "least 30 min that sets the start state: give the SOC of the log's first sample (--soc0)"
+            )
+        name = f"{data.name}:{r.profile_id}"
+        if ids.count(r.profile_id) > 1 and not repeated:
+            name += f"s{r.step_index}"
+        if repeated:
+            name += f"t{r.trial}"
+        sub = LoggedData(name, {c: v[r.start : r.stop] for c, v in data.columns.items()}, dict(data.meta), data.source)
+        exps = experiments_from_data(
+            sub,
+            cell,
+            dt=dt,
+            noise=noise,
+            soc0=float(np.clip(start, 0.0, 1.0)),
+            max_gap=max_gap,
+            rest_current=rest_current,
+            ambient=ambient,
+        )
+        tags: dict[str, Any] = {"library_id": r.profile_id, "step_index": r.step_index, "trial": r.trial}
+        if r.group is not None:
+            tags["group"] = r.group
+        out += [replace(e, profile=e.profile.with_meta(params={**e.profile.params, **tags})) for e in exps]
+    return out
+
+
+def logged_groups(loaded: Sequence[LoggedData]) -> list[DesignGroup] | None:
+    """The design groups of the run logs that have a plan, merged (group k: the first log's parameters, the
+    profiles every log's group k selected): each log's groups are those the runner stored with it (from the plan's
+    design summary), else its plan's profile labels with the paper's Table 9 groups; None without a run log.
+    Several logs are e.g. the groups of a sequential design, each run from its own plan."""
+    merged: list[DesignGroup] = []
+    found = False
+    for d in loaded:
+        groups: list[DesignGroup] | None = None
+        stored = d.meta.get(DESIGN_GROUPS)
+        if stored:
+            try:
+                groups = groups_from_dicts(stored)
+            except (KeyError, TypeError):
+                groups = None
+        if groups is None:
+            plan = logged_plan(d)
+            if plan is None or not has_structure(d):
+                continue
+            groups = label_groups(plan.protocol)
+        found = True
+        for k, g in enumerate(groups):
+            if k < len(merged):
+                merged[k] = DesignGroup(merged[k].parameters, merged[k].selected | g.selected)
+            else:
+                merged.append(g)
+    return merged if found else None
+
+
+def experiments(
+    data: LoggedData,
+    cell: Cell,
+    *,
+    plan: Plan | None = None,
+    plan_name: str = "the plan",
+    **kwargs: Any,
+) -> list[Experiment]:
+    """The fit experiments of one logged test: cut at the profile steps of the run's plan when it is a run log (the
+    logged plan, checked against ``plan`` when both are known), else one per segment between gaps
+    (:func:`experiments_from_data`)."""
+    if has_structure(data):
+        logged = logged_plan(data)
+        if logged is not None and plan is not None:
+            check_same_plan(data, logged, plan, plan_name)
+        use = logged or plan
+        if use is not None:
+            return plan_experiments(data, cell, use, **kwargs)
+    return experiments_from_data(data, cell, **kwargs)
+
+
+__all__ = [
+    "DESIGN_GROUPS",
+    "ProfileRun",
+    "check_same_plan",
+    "experiments",
+    "has_structure",
+    "logged_groups",
+    "logged_plan",
+    "plan_experiments",
+    "profile_runs",
+]

@@ -1,0 +1,286 @@
+"""The closed loop on the in-process virtual tester: design -> run -> fit, with the numbers that say how it went.
+
+1. Sweep a reduced library (the campaign's quick ids, or ``--ids``) on the start cell nca18650 and design
+   (``--M`` profiles per group, the paper's Table 9 groups or the ranking's, D-optimal, ``singular="project"``);
+   the design's null directions per group are printed (what the projection removed), and each group whose
+   information holds an electrode's whole symmetry orbit is designed again in the identifiable coordinates
+   (its R_s left out, as the fit holds it): the selections are compared.
+2. Run the plan on the in-process virtual tester whose cell is the hidden truth nca18650-true (its preflight and
+   window checks are on that cell too), at ``--speed``, noise seed ``--seed``.
+3. Print: the samples late / the gaps (missed samples) from the log's run statistics and ``/gaps``; the true
+   cell's RMSE on its own log and its weighted residual variance s² (target 0.8-1.25: the noise model
+   matches the virtual tester's noise); the fit's time (target <= 120 s for the full design plan), its
+   estimates and invariants against the truth with their 95 % intervals and coverage.
+
+``--seeds N`` repeats run and fit with seeds 0..N-1 (one design) and prints the coverage over seeds.
+
+``--sequential``: after the one-shot loop, the sequential design on the same truth and seed: for k = 1..4 the
+library is swept at the current estimate, group k (Table 9, cumulative information of groups 1..k) is designed
+there and run alone (its own plan, from a full charge), and all logs so far are fitted (stages 1..k, from the
+previous estimate). The final estimates of both are printed against the truth, with the mean |log10 error| over
+the point-identified parameters and the invariants.
+
+    PYTHONPATH=$PWD python benchmarks/bench_loop.py --M 1 --max-iter 10
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+TARGET_FIT_S = 120.0
+S2_RANGE = (0.8, 1.25)
+
+
+def library(work: Path) -> Path:
+    from protocols import Library
+
+    lib_path = work / "library.h5"
+    if not lib_path.exists():
+        Library.build().save(lib_path)
+    return lib_path
+
+
+def design(work: Path, ids: list[int], M: int, groups: str | None) -> Path:
+    from battlab.design import workflow as dw
+
+    lib_path = library(work)
+    store = work / "store.h5"
+    t0 = time.perf_counter()
+    dw.sweep(lib_path, "nca18650", store, ids=ids, workers=1)
+    t_sweep = time.perf_counter() - t0
+    plan = work / "plan.toml"
+    t0 = time.perf_counter()
+    rep = dw.design(store, plan, M=M, groups_spec=groups, singular="project")
+    print(f"design: sweep of {len(ids)} profiles {t_sweep:.0f} s, design {time.perf_counter() - t0:.1f} s")
+    for d in rep.designs:
+        nulls = "; ".join(n.describe() for n in d.unidentifiable) or "none"
+        print(f"  group {d.index} {d.new_parameters}: selected {d.selected}; null directions projected out: {nulls}")
+    compare_reduced(store, rep.designs, M)
+    return plan
+
+
+def compare_reduced(store: Path, designs: Any, M: int) -> None:
+    """Each group whose parameters hold an electrode's whole orbit, designed on the same candidates (no window
+    screen) with ``singular="project"`` and in the identifiable coordinates (R_s left out)."""
+    from battlab.design import groups as gd
+    from battlab.design import information
+    from battlab.design.sweep import SensitivityStore
+    from battlab.identify import reduced
+
+    with SensitivityStore.open(store) as s:
+        info = information.load(s)
+    settings = gd.Settings(M=M, on_singular="project", n_random=0)
+    for d in designs:
+        fitted, held = reduced.split(d.parameters)
+        if not held:
+            continue
+        a = gd.design_stage(info.F, info, d.parameters, settings, index=d.index)
+        b = gd.design_stage(info.F, info, fitted, settings, index=d.index)
+        same = sorted(map(str, a.selected)) == sorted(map(str, b.selected))
+        print(
+            f"  group {d.index} in identifiable coordinates ({', '.join(held)} held): selected {b.selected}, "
+            f"{len(b.unidentifiable)} null directions left; projected: {a.selected} "
+            f"({len(a.unidentifiable)} projected out); same selection: {same}"
+        )
+
+
+def run(work: Path, plan: Path, seed: int, speed: float) -> Path:
+    from battlab.lab.session import RunSettings, start_run
+
+    log = work / f"run-seed{seed}.h5"
+    if log.exists():
+        log.unlink()
+    settings = RunSettings("virtual", "virtual", cell="nca18650-true", speed=speed, seed=seed)
+    t0 = time.perf_counter()
+    res = start_run(plan, settings, log, display=False)
+    print(f"run (seed {seed}): {res.status} {res.reason or ''} in {time.perf_counter() - t0:.0f} s wall")
+    return log
+
+
+def log_quality(log: Path) -> None:
+    from battlab.io.logs import read_log
+
+    data = read_log(log)
+    stats = (data.meta.get("final") or {}).get("stats", {})
+    gaps = data.meta.get("gaps", [])
+    missed = sum(max(0.0, b - a - 1.0) for _, a, b in gaps)
+    print(
+        f"  log: {len(data)} samples over {data.t[-1] - data.t[0]:.0f} s; late samples {stats.get('late_samples')}"
+        f" (max {stats.get('max_late_s', float('nan')):.3g} s); gaps {len(gaps)} (about {missed:.0f} samples missed,"
+        f" longest {stats.get('max_gap_s', 0.0):.3g} s)"
+    )
+
+
+def truth_residuals(log: Path) -> None:
+    """RMSE and s² of the true cell on its own log (the experiments the fit sees)."""
+    from battlab import Cell, parameters
+    from battlab.identify import runlog
+    from battlab.identify.forward import ForwardModel
+    from battlab.io.data import load_data
+
+    truth = Cell.load("nca18650-true")
+    exps = runlog.experiments(load_data(log), truth)
+    fm = ForwardModel(truth, v_margin=0.15)
+    th = np.array([truth.normalised(n) for n in parameters.NAMES])
+    chi2, n, parts = 0.0, 0, []
+    for e in exps:
+        out = fm.run(th, e.profile, e.soc0, ambient=e.ambient, T0=e.T0)
+        k = out.voltage.size
+        r = (out.voltage - e.voltage[:k]) / np.sqrt(e.variance[:k])
+        chi2 += float(r @ r)
+        n += k
+        parts.append(f"{e.name} {1e3 * np.sqrt(np.mean((out.voltage - e.voltage[:k]) ** 2)):.2f} mV")
+    s2 = chi2 / n
+    ok = "met" if S2_RANGE[0] <= s2 <= S2_RANGE[1] else "MISSED"
+    print(f"  truth on its log: RMSE {', '.join(parts)}; s2 {s2:.3g} (target {S2_RANGE[0]}-{S2_RANGE[1]}: {ok})")
+
+
+def invariant_truth(name: str, truth: Any) -> float:
+    from battlab.identify.symmetry import INVARIANTS
+
+    e = name.rsplit("_", 1)[1]
+    return math.prod(float(truth[p]) ** a for p, a in INVARIANTS[e][name].items())
+
+
+def fit(
+    work: Path, logs: list[Path], plan: Path | None, max_iter: int, start: str = "nca18650"
+) -> tuple[dict[str, bool], float]:
+    """Fit the logs from ``start`` in the plan's groups (None: the groups the logs carry); print estimates vs
+    truth; returns ({name: covered}, mean |log10 error| of the point-identified parameters and invariants)."""
+    from battlab import Cell
+    from battlab.identify import workflow
+
+    truth = Cell.load("nca18650-true")
+    t0 = time.perf_counter()
+
+    def stage(k: int, r: Any) -> None:
+        c = r.convergence
+        print(
+            f"  stage {k}: {len(r.names)} fitted, {c.iterations} evaluations, {c.seconds:.0f} s, "
+            f"s2 {r.statistics.s2:.3g}, {'converged' if c.converged else c.reason}"
+        )
+
+    rep = workflow.fit(
+        logs, start, plan=plan, params=None, max_iter=max_iter, on_stage=stage, output=work / "fit.bpx.json"
+    )
+    secs = time.perf_counter() - t0
+    ok = "met" if secs <= TARGET_FIT_S else "MISSED"
+    print(f"  fit: {secs:.0f} s (target <= {TARGET_FIT_S:.0f} s for the full design plan: {ok})")
+    st = rep.last.statistics
+    covered: dict[str, bool] = {}
+    errors: list[float] = []
+    for e in st.estimates:
+        tv = float(truth[e.name])
+        cov = e.covers(tv)
+        kind = "set" if e.set_identified else "bound" if e.at_bound else ""
+        ci = f"[{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]" if e.ci95 else "-"
+        print(f"    {e.name:12s} {e.value:11.4g} truth {tv:11.4g} ci95 {ci:28s} {kind:5s} covered {cov}")
+        if cov is not None and not e.set_identified:
+            covered[e.name] = cov
+            errors.append(abs(math.log10(e.value / tv)))
+    for i in st.invariants:
+        tv = invariant_truth(i.name, truth)
+        cov = i.ci95[0] <= tv <= i.ci95[1]
+        ci = f"[{i.ci95[0]:.4g}, {i.ci95[1]:.4g}]"
+        print(f"    {i.name:12s} {i.value:11.4g} truth {tv:11.4g} ci95 {ci:28s} inv   covered {cov}")
+        covered[i.name] = cov
+        errors.append(abs(math.log10(i.value / tv)))
+    n = len(covered)
+    err = float(np.mean(errors)) if errors else float("nan")
+    print(
+        f"  covered: {sum(covered.values())} of {n} (point-identified parameters and invariants); "
+        f"mean |log10 error| {err:.3f}"
+    )
+    return covered, err
+
+
+def sequential(work: Path, ids: list[int], M: int, max_iter: int, seed: int, speed: float) -> float:
+    """The sequential design (see the module docstring); returns the final mean |log10 error|."""
+    import json
+
+    from battlab import Cell
+    from battlab.design import workflow as dw
+    from battlab.parameters import TABLE9_GROUPS
+
+    lib_path = library(work)
+    start, logs, err = "nca18650", [], float("nan")
+    for k in range(1, len(TABLE9_GROUPS) + 1):
+        wk = work / f"seq{k}"
+        wk.mkdir(parents=True, exist_ok=True)
+        (wk / "groups.json").write_text(json.dumps([list(g) for g in TABLE9_GROUPS[:k]]))
+        t0 = time.perf_counter()
+        dw.sweep(lib_path, Cell.load(start), wk / "store.h5", ids=ids, workers=1)
+        rep = dw.design(wk / "store.h5", wk / "plan.toml", M=M, groups_spec=str(wk / "groups.json"))
+        d = rep.designs[k - 1]
+        print(f"sequential group {k}: designed at {start} in {time.perf_counter() - t0:.0f} s: selected {d.selected}")
+        logs.append(run(wk, rep.files.groups[k - 1], seed, speed))
+        log_quality(logs[-1])
+        _, err = fit(wk, logs, None, max_iter, start)
+        start = str(wk / "fit.bpx.json")
+    return err
+
+
+def main() -> None:
+    from battlab.campaign.config import QUICK_LIBRARY_IDS
+    from protocols.errors import InputError
+
+    logging.getLogger("pymodbus").setLevel(logging.WARNING)
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--ids", default=",".join(map(str, QUICK_LIBRARY_IDS)), help="library ids to sweep")
+    ap.add_argument("--M", type=int, default=2, help="profiles per group")
+    ap.add_argument("--groups", default="paper", help="'paper' (Table 9) or a groups JSON; '' for the ranking's")
+    ap.add_argument("--max-iter", type=int, default=20, help="evaluations per fit stage")
+    ap.add_argument(
+        "--speed", type=float, default=100.0, help="virtual clock speed (1000 on a loaded 2-core host: late samples)"
+    )
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seeds", type=int, default=0, help="repeat run and fit for seeds 0..N-1 (coverage)")
+    ap.add_argument("--sequential", action="store_true", help="also the sequential design (see above)")
+    ap.add_argument("--sequential-only", action="store_true", help="the sequential design alone")
+    ap.add_argument("--workdir", default=None)
+    a = ap.parse_args()
+    work = Path(a.workdir or tempfile.mkdtemp(prefix="bench_loop-"))
+    work.mkdir(parents=True, exist_ok=True)
+    os.environ.setdefault("BATTLAB_HOME", str(work / "home"))
+    print(f"work directory {work}")
+    seeds = list(range(a.seeds)) if a.seeds else [a.seed]
+    if a.sequential_only:
+        seq = sequential(work, [int(x) for x in a.ids.split(",")], a.M, a.max_iter, seeds[-1], a.speed)
+        print(f"mean |log10 error|: sequential {seq:.3f} (seed {seeds[-1]})")
+        return
+    plan = design(work, [int(x) for x in a.ids.split(",")], a.M, a.groups or None)
+    tally: dict[str, list[bool]] = {}
+    one_shot = float("nan")
+    for seed in seeds:
+        log = run(work, plan, seed, a.speed)
+        log_quality(log)
+        try:
+            truth_residuals(log)
+        except InputError as exc:
+            print(f"  no fit: {exc}")
+            continue
+        covered, one_shot = fit(work, [log], plan, a.max_iter)
+        for k, v in covered.items():
+            tally.setdefault(k, []).append(v)
+    if len(seeds) > 1:
+        print(f"coverage over {len(seeds)} seeds:")
+        for k, v in tally.items():
+            print(f"  {k:12s} {sum(v)}/{len(v)}")
+    if a.sequential:
+        ids = [int(x) for x in a.ids.split(",")]
+        seq = sequential(work, ids, a.M, a.max_iter, seeds[-1], a.speed)
+        print(f"mean |log10 error|: one-shot {one_shot:.3f}, sequential {seq:.3f} (seed {seeds[-1]})")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,104 @@
+"""A run log is fitted on its plan's structure: one experiment per executed profile step, tagged with its library
+id, so that the design's groups become the fit's stages."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from battlab import Cell, InputError
+from battlab.identify import runlog, workflow
+from battlab.io.data import load_data
+
+
+def test_a_run_log_is_cut_at_its_profile_steps(tmp_path: Path, run_log) -> None:
+    log, _ = run_log(tmp_path / "run.h5")
+    data = load_data(log)
+    exps = runlog.experiments(data, Cell.load("nca18650"))
+    assert [e.name for e in exps] == ["run:28", "run:37"]
+    assert [e.profile.params["library_id"] for e in exps] == ["28", "37"]
+    for e in exps:  # the 600 s profile alone, from the SOC of the rest before it
+        assert e.soc0 == pytest.approx(0.8, abs=1e-3)
+        assert e.profile.duration == pytest.approx(600.0, abs=1.0)
+    groups = runlog.logged_groups([data])
+    stages = workflow.stages(None, None, exps, [(g.parameters, set(g.selected)) for g in groups])
+    assert [[e.name for e in s.experiments] for s in stages[:2]] == [["run:28"], ["run:37"]]
+    assert stages[0].names == ("R_s_n", "R_s_p")  # labels 'group k' with Table 9's groups
+
+
+def test_repeated_profiles_are_one_experiment_per_trial(tmp_path: Path, run_log) -> None:
+    log, _ = run_log(tmp_path / "run.h5", ids=(28,), repeat=2)
+    exps = runlog.experiments(load_data(log), Cell.load("nca18650"))
+    assert [e.name for e in exps] == ["run:28t1", "run:28t2"]
+    assert [e.profile.params["trial"] for e in exps] == [1, 2]
+
+
+def test_the_given_plan_must_be_the_one_that_ran(tmp_path: Path, run_log) -> None:
+    from battlab.io.plan import Plan
+
+    log, _ = run_log(tmp_path / "run.h5")
+    (tmp_path / "other").mkdir()
+    _, other = run_log(tmp_path / "other" / "run.h5", ids=(37, 28))
+    with pytest.raises(InputError, match=r"run\.h5: the run's plan is not .*step 5 runs profile 28 in the log"):
+        runlog.experiments(load_data(log), Cell.load("nca18650"), plan=Plan.load(other), plan_name=str(other))
+
+
+def test_the_runner_keeps_the_design_groups_in_the_log(tmp_path: Path, run_log) -> None:
+    """The groups the runner copied from the plan's design summary decide the stages of `fit RUN.h5` alone."""
+    import h5py
+
+    log, _ = run_log(tmp_path / "run.h5")
+    groups = [{"parameters": ["R_s_p"], "selected": ["37"]}, {"parameters": ["R_s_n"], "selected": ["28"]}]
+    with h5py.File(log, "a") as f:
+        meta = json.loads(f.attrs["meta"])
+        f.attrs["meta"] = json.dumps({**meta, "design_groups": groups})
+    found = runlog.logged_groups([load_data(log)])
+    assert [(g.parameters, set(g.selected)) for g in found] == [(("R_s_p",), {"37"}), (("R_s_n",), {"28"})]
+
+
+def test_a_profile_selected_by_several_groups_is_fitted_once_per_run(tmp_path: Path, run_log) -> None:
+    """The design may select one profile in several groups (the plan then runs it once per group): each run of it
+    joins the stage of its own group, none is counted twice."""
+    log, _ = run_log(tmp_path / "run.h5", ids=(28, 28))
+    data = load_data(log)
+    exps = runlog.experiments(data, Cell.load("nca18650"))
+    assert [e.name for e in exps] == ["run:28s5", "run:28s9"]
+    groups = [(("R_s_n",), {"28"}), (("R_s_p",), {"28"})]
+    stages = workflow.stages(None, None, exps, groups)
+    assert [[e.name for e in s.experiments] for s in stages] == [["run:28s5"], ["run:28s9"]]
+
+
+def test_the_groups_of_several_run_logs_are_merged(tmp_path: Path, run_log) -> None:
+    """Two run logs of two plans (group 1's profile, then group 2's, as a sequential design runs them): group k
+    holds the profiles every log's group k selected, so each log's profile joins its own stage."""
+    from battlab.design.plan import grouped_protocol, ocv_table
+    from battlab.io.logs import open_log
+    from protocols import Library
+
+    first, _ = run_log(tmp_path / "run.h5", ids=(28,))
+    data = load_data(first)
+    # the same rows, run from a plan whose profile step is labelled group 2 and runs profile 37's id
+    proto = grouped_protocol("second", [(2, [Library.build()[37]])], "test", ocv_table(Cell.load("nca18650")))
+    meta = {**data.meta, "plan": {**proto.to_dict(), "run": {}}}
+    second = tmp_path / "second.h5"
+    with open_log(second, list(data.columns), meta) as w:
+        w.append(dict(data.columns))
+    logs = [data, load_data(second)]
+    groups = runlog.logged_groups(logs)
+    assert [set(g.selected) for g in groups[:2]] == [{"28"}, {"37"}]
+    exps = [e for d in logs for e in runlog.experiments(d, Cell.load("nca18650"))]
+    stages = workflow.stages(None, None, exps, [(g.parameters, set(g.selected)) for g in groups])
+    assert [[e.name for e in s.experiments] for s in stages[:2]] == [["run:28"], ["second:37"]]
+
+
+def test_run_logs_of_the_same_name_keep_apart(tmp_path: Path, run_log) -> None:
+    """Two run logs named run.h5 in two directories (a sequential design's): their experiments get distinct
+    names, so the summary's RMSE and the stages list both."""
+    logs = []
+    for d in ("a", "b"):
+        (tmp_path / d).mkdir()
+        logs.append(load_data(run_log(tmp_path / d / "run.h5", ids=(28,))[0]))
+    exps = workflow.unique_names([e for d in logs for e in runlog.experiments(d, Cell.load("nca18650"))])
+    assert [e.name for e in exps] == ["run:28", "run:28~2"]
