@@ -323,6 +323,11 @@ def diagnose(
     check_ambient_keys(paths, ambient)
     for c in causes or ():
         parameters.extension_parameters(c)
+        if c not in DEFAULT_CAUSES:
+            raise InputError(
+                f"cause {c!r} cannot be score-tested (its voltage is not differentiable at its off value); "
+                f"expected one of {', '.join(DEFAULT_CAUSES)}"
+            )
     loaded, warned = load_all(paths, fix_sign=fix_sign)
     hold_name: str | None = None
     data_parts: list[tuple[str, list[Experiment]]] = []

@@ -9,36 +9,14 @@ to refit the base."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from protocols.errors import InputError
 
 
-def hidden_effect_csv(path: Path, extension: str | None = None, seed: int = 1, **values: float) -> str:
-    """UDDS (first 1800 s) from SOC 0.7 at 25 degC on the nominal cell with ``extension`` on at ``values``."""
-    import battlab
-    from battlab.identify.forward import ForwardModel
-    from battlab.identify.virtual import synthesize
-    from battlab.io.bdf import write_bdf_csv
-    from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE, LoggedData
-    from protocols import Profile
-    from protocols.drive_cycles import Cycle, drive_profile
-
-    truth = battlab.Cell.load("nca18650")
-    if extension is not None:
-        truth = truth.with_extension(extension, **values)
-    p = drive_profile(Cycle.UDDS)
-    prof = Profile(p.t[:1801], p.current[:1801], id="udds")
-    e = synthesize(ForwardModel(truth), truth, prof, 0.7, seed=seed)
-    cols = {TIME: prof.t, VOLTAGE: e.voltage, CURRENT: prof.current, AMBIENT: np.full(prof.t.size, 25.0)}
-    return str(write_bdf_csv(LoggedData(path.name.split(".")[0], cols, {"soc0": 0.7}), path))
-
-
 @pytest.fixture(scope="module")
-def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+def logs(tmp_path_factory: pytest.TempPathFactory, hidden_effect_csv) -> dict[str, str]:
     d = tmp_path_factory.mktemp("diagnose")
     return {
         "null": hidden_effect_csv(d / "null.bdf.csv"),
