@@ -14,7 +14,8 @@ model extension explains it, and whether that extension predicts data it was not
    batch-means (block) variance, robust to correlated model error. A cause passes when its p-value (Hotelling's
    T² against F, see :mod:`battlab.diagnose.score`) is below ``alpha`` / (number of causes tested): Bonferroni, so
    the false-alarm rate of the whole ranking is at most ``alpha`` when the blocks outlast the error's correlation.
-5. Confirmation: the leading :data:`CONFIRM` passing causes' extension parameters are fitted on the training
+5. Confirmation: the leading :data:`CONFIRM` passing causes' extension parameters (and those of passing causes
+   indistinguishable from them, :func:`battlab.diagnose.score.indistinguishable`) are fitted on the training
    part together with the :data:`N_BASE` base parameters whose directions explain most of the residual; the base
    model gets the same fit of the same base parameters (same data, start, optimiser and stopping rule). A cause is
    named only when its fitted extension's RMSE on the held-out part is at least :data:`MIN_GAIN` below the base
@@ -48,6 +49,8 @@ N_BLOCKS = 30
 BLOCK_MIN_S = 60.0
 #: passing causes whose extension is fitted and checked on held-out data
 CONFIRM = 2
+#: at most this many causes fitted (the leading ones and those indistinguishable from them)
+MAX_CONFIRM = 4
 #: base parameters fitted beside an extension (and alone, for the base model's fair comparison)
 N_BASE = 3
 #: relative held-out RMSE gain an extension must show to be named
@@ -279,6 +282,16 @@ def _confirm(
     )
 
 
+def _candidates(passing: Sequence[Any], twins: Sequence[tuple[str, str, float]]) -> list[Any]:
+    """The causes to fit: the leading :data:`CONFIRM` passing ones, and any passing cause the data cannot tell
+    apart from one of them (their scores rank such twins by chance), at most :data:`MAX_CONFIRM`."""
+    lead = list(passing[:CONFIRM])
+    names = {s.cause for s in lead}
+    alike = {b if a in names else a for a, b, _ in twins if (a in names) != (b in names)}
+    lead += [s for s in passing[CONFIRM:] if s.cause in alike]
+    return lead[:MAX_CONFIRM]
+
+
 def _mimicked_by(J: np.ndarray, S: np.ndarray, w: np.ndarray, names: Sequence[str], n: int = 2) -> list[str]:
     """The ``n`` base parameters whose directions are most nearly parallel to the extension's first (|cos|, W)."""
     sw = np.sqrt(w)
@@ -445,7 +458,7 @@ def diagnose(
         relevant = tuple(base_names[k] for k in np.argsort(relevance)[::-1][:N_BASE])
         say(f"fitting the base model's {', '.join(relevant)} on the training part")
         base_fit = _confirm(base, None, relevant, train, parts, max_iter)
-        for s in passing[:CONFIRM]:
+        for s in _candidates(passing, twins):
             say(f"fitting {s.cause} on the training part")
             confirmations.append(_confirm(base, s.cause, relevant, train, parts, max_iter))
         winners = [c for c in confirmations if c.rmse_held_out_mV <= (1.0 - MIN_GAIN) * base_fit.rmse_held_out_mV]

@@ -44,6 +44,21 @@ def test_a_hidden_current_sensor_offset_is_named_and_wins_on_held_out_data(logs,
     assert "current_sensor" in page.read_text()
 
 
+@pytest.mark.slow
+def test_a_hidden_ocv_offset_is_named_although_two_alike_causes_score_higher(hidden_effect_csv, tmp_path) -> None:
+    """A 5 mV OCV offset scores below current_sensor and hysteresis (their directions are nearly parallel on 30 min
+    of driving, |cos| ≥ 0.95); fitting the causes indistinguishable from the leaders finds it on held-out data
+    (measured: base fit 3.72 mV, current_sensor 4.57, hysteresis 3.72, equilibrium 1.23 mV; about 90 s)."""
+    from battlab.diagnose.workflow import diagnose
+
+    rep = diagnose([hidden_effect_csv(tmp_path / "du.bdf.csv", "equilibrium", dU=0.005)], "nca18650")
+    s = rep.summary
+    assert s["cause"] == "equilibrium", rep.text()
+    assert [r["cause"] for r in s["ranking"]].index("equilibrium") >= 1  # the twins' logic is what finds it
+    fitted = next(c for c in rep.confirmations if c.cause == "equilibrium")
+    assert s["extension_gain"]["rmse_after_mV"] == fitted.rmse_held_out_mV < 0.5 * s["extension_gain"]["rmse_before_mV"]
+
+
 def test_noise_only_names_no_cause(logs) -> None:
     from battlab.diagnose.workflow import diagnose
 
