@@ -77,3 +77,16 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, case: str, expected: str) ->
     assert r.exit_code == 2, r.output
     assert "Traceback" not in r.output and expected in r.output, r.output
     assert len([ln for ln in r.output.splitlines() if ln.startswith("error:")]) == 1
+
+
+@pytest.mark.slow
+def test_several_files_hold_out_the_one_named_and_a_lone_held_out_file_is_refused(tmp_path, hidden_effect_csv) -> None:
+    a = hidden_effect_csv(tmp_path / "a.bdf.csv", seed=2)
+    b = hidden_effect_csv(tmp_path / "b.bdf.csv", seed=3)
+    out = tmp_path / "r"
+    r = CliRunner().invoke(main, ["diagnose", a, b, "--cell", "nca18650", "--held-out", a, "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    s = json.loads((out / "summary.json").read_text())
+    assert s["held_out"] == "a" and s["extension_gain"]["held_out"] == "a" and s["data"] == ["a", "b"]
+    r = CliRunner().invoke(main, ["diagnose", a, "--cell", "nca18650", "--held-out", "a.bdf.csv", "-o", str(out)])
+    assert r.exit_code == 2 and "no training data left" in r.output, r.output
