@@ -59,6 +59,7 @@ def _register() -> None:
     # each command module registers here (one import line each)
     from battlab.cli.campaign import campaign
     from battlab.cli.design import design, groups, sensitivity
+    from battlab.cli.diagnose import diagnose
     from battlab.cli.export import export
     from battlab.cli.fit import fit, validate
     from battlab.cli.library import library
@@ -79,6 +80,7 @@ def _register() -> None:
         run,
         runs,
         campaign,
+        diagnose,
     ):
         main.add_command(cmd)
 

@@ -45,9 +45,13 @@ def extension_directions(
     causes: Sequence[str] | None = None,
     ambient: float = 298.15,
     isothermal: bool = False,
+    T0: float | None = None,
+    v_limits: tuple[float, float] | None = None,
 ) -> list[Directions]:
     """Directions of the extensions :data:`DEFAULT_CAUSES` (or ``causes``) at the fitted base ``cell``: its
-    extensions are switched off first; one that cannot run here (``thermal`` when isothermal) is left out."""
+    extensions are switched off first; one that cannot run here (``thermal`` when isothermal) is left out.
+    ``ambient``, ``T0`` [K] and ``v_limits`` [V] as in :func:`battlab.simulate` (measured data may pass the cell's
+    window: widen it as the replay of a log does); the arrays end where the simulation stopped."""
     base = cell
     for key in list(cell.extensions):
         base = base.without_extension(key)
@@ -58,7 +62,14 @@ def extension_directions(
         ext = base.with_extension(key)
         names = tuple(p.qualified for p in parameters.EXTENSIONS[key])
         res = simulate(
-            ext, profile, soc0=soc0, ambient=ambient, isothermal=isothermal, sensitivities=[*base_names, *names]
+            ext,
+            profile,
+            soc0=soc0,
+            ambient=ambient,
+            isothermal=isothermal,
+            sensitivities=[*base_names, *names],
+            T0=T0,
+            v_limits=v_limits,
         )
         sens = res.sensitivities
         p = len(base_names)

@@ -169,3 +169,29 @@ def _run_log(path: Path, ids: tuple[int, ...] = (28, 37), repeat: int = 1, truth
 def run_log() -> Callable[..., tuple[Path, Path]]:
     """``run_log(path, ids=(28, 37), repeat=1, truth=True)``: see :func:`_run_log`."""
     return _run_log
+
+
+def _hidden_effect_csv(path: Path, extension: str | None = None, seed: int = 1, **values: float) -> str:
+    """UDDS (first 1800 s) from SOC 0.7 at 25 degC on the nominal cell with ``extension`` on at ``values``."""
+    import battlab
+    from battlab.identify.forward import ForwardModel
+    from battlab.identify.virtual import synthesize
+    from battlab.io.bdf import write_bdf_csv
+    from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE, LoggedData
+    from protocols import Profile
+    from protocols.drive_cycles import Cycle, drive_profile
+
+    truth = battlab.Cell.load("nca18650")
+    if extension is not None:
+        truth = truth.with_extension(extension, **values)
+    p = drive_profile(Cycle.UDDS)
+    prof = Profile(p.t[:1801], p.current[:1801], id="udds")
+    e = synthesize(ForwardModel(truth), truth, prof, 0.7, seed=seed)
+    cols = {TIME: prof.t, VOLTAGE: e.voltage, CURRENT: prof.current, AMBIENT: np.full(prof.t.size, 25.0)}
+    return str(write_bdf_csv(LoggedData(path.name.split(".")[0], cols, {"soc0": 0.7}), path))
+
+
+@pytest.fixture(scope="session")
+def hidden_effect_csv() -> Callable[..., str]:
+    """``hidden_effect_csv(path, extension=None, seed=1, **values)``: see :func:`_hidden_effect_csv`."""
+    return _hidden_effect_csv

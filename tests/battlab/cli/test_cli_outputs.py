@@ -1,6 +1,6 @@
 """Every command that writes a file checks its output path before the work. Commands that write into an
 existing directory (library, simulate, run) refuse a missing one; commands that make their output's directory
-(design, sensitivity, groups, fit, validate, export) refuse a path through a file. Either is one line naming
+(design, sensitivity, groups, fit, validate, diagnose, export) refuse a path through a file. Either is one line naming
 the path, exit code 2, and nothing written."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from battlab.cli import describe_os_error, main
 
 REFUSING = ("library build", "library plot", "simulate", "run")
-CREATING = ("export", "sensitivity", "groups", "design", "fit", "validate")
+CREATING = ("export", "sensitivity", "groups", "design", "fit", "validate", "diagnose")
 COMMANDS = REFUSING + CREATING
 
 
@@ -37,6 +37,7 @@ def _commands(tmp: Path, out: Path) -> dict[str, list[str]]:
         "design": ["design", store, "-o", str(out / "plan.toml")],
         "fit": ["fit", str(data), "--cell", "nca18650", "-o", str(out / "c.bpx.json")],
         "validate": ["validate", str(data), "--cell", "nca18650", "-o", str(out / "v")],
+        "diagnose": ["diagnose", str(data), "--cell", "nca18650", "-o", str(out / "report")],
         "run": ["run", str(plan), "--cycler", "virtual", "--chamber", "virtual", "-o", str(out / "r.h5")],
     }
 

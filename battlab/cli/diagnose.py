@@ -1,0 +1,67 @@
+"""``battlab diagnose``: a thin shell over :func:`battlab.diagnose.workflow.diagnose` (where the cell's simulation
+disagrees with logged data, which model extension explains it, and whether it predicts held-out data).
+
+Writes ``report/summary.json`` (``{"cause", "ranking": [{"cause", "score", ...}], "extension_gain":
+{"rmse_before_mV", "rmse_after_mV", "held_out"}, ...}``), ``report/report.html`` with its PNG figures, and prints
+a one-screen summary.
+"""
+
+from __future__ import annotations
+
+import click
+
+from battlab.cli.fit import AMBIENT_OPTION, parse_ambients
+
+
+@click.command("diagnose")
+@click.argument("data", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--cell", "cell_name", required=True, help="The cell: a built-in name or a BPX file.")
+@click.option(
+    "--held-out",
+    default=None,
+    type=click.Path(dir_okay=False),
+    help="Data to hold out for the confirmation (default: the last file; with one file its final 30 %).",
+)
+@AMBIENT_OPTION
+@click.option("--soc0", type=float, default=None, help="Start SOC of data that do not start at rest.")
+@click.option("--dt", type=float, default=1.0, show_default=True, help="Resample to this step [s].")
+@click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
+@click.option(
+    "--cause", "causes", multiple=True, help="Test only this catalog cause (repeat; default: every testable one)."
+)
+@click.option("--max-iter", type=int, default=20, show_default=True, help="Function evaluations per held-out fit.")
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Report directory.")
+def diagnose(
+    data: tuple[str, ...],
+    cell_name: str,
+    held_out: str | None,
+    ambients: tuple[str, ...],
+    soc0: float | None,
+    dt: float,
+    fix_sign: bool,
+    causes: tuple[str, ...],
+    max_iter: int,
+    output: str,
+) -> None:
+    """Find which model extension explains where CELL disagrees with DATA, and check it on held-out data."""
+    from battlab.diagnose import workflow
+    from battlab.io.paths import check_output_path
+
+    out = check_output_path(output, directory=True, create=True)
+    rep = workflow.diagnose(
+        data,
+        cell_name,
+        held_out=held_out,
+        soc0=soc0,
+        ambient=parse_ambients(ambients),
+        dt=dt,
+        fix_sign=fix_sign,
+        causes=causes or None,
+        max_iter=max_iter,
+        on_step=lambda text: click.echo(f"... {text}", err=True),
+    )
+    for w in rep.warnings:
+        click.echo(f"warning: {w}", err=True)
+    page = rep.write(out)
+    click.echo(rep.text())
+    click.echo(f"wrote {page}, {out / 'summary.json'} and the figures")
