@@ -221,8 +221,13 @@ class SimulatedCycler:
                     self.push_error(-310, f"System error; {detail}"[:120])
                     self.t = t_next
                     continue
-                self._dv = v - self.v_true
-                self._dvdt = self._dv / dt if dt > 0 else 0.0
+                if current != self.i_true:  # the step began with a current step: its voltage change is
+                    # mostly the instantaneous jump, no slope of the voltage at the reading (which would add
+                    # jitter × jump / dt: a third of a 5 A jump 10 ms after it), so the step gives no slope
+                    self._dv = self._dvdt = 0.0
+                else:
+                    self._dv = v - self.v_true
+                    self._dvdt = self._dv / dt if dt > 0 else 0.0
                 self.v_true, self.T_cell_K = v, T
             self.i_true = current
             self.t = t_next

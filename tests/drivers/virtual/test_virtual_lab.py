@@ -398,3 +398,25 @@ def test_a_lab_whose_physics_falls_behind_its_clock_still_stops() -> None:
     assert time.monotonic() - t0 < 2.5
     assert lab.lock.acquire(timeout=1.0), "the lab's lock was still held after stop()"
     lab.lock.release()
+
+
+def test_a_reading_just_after_a_current_step_carries_no_jitter_of_the_jump(make_lab) -> None:  # noqa: ANN001
+    """A lock-step reading 10 ms (one message) after a 5 A step: the sample-time jitter error is jitter × the
+    voltage's slope at the reading, not × (the whole jump / 10 ms), so the reading is the true voltage within the
+    white and current noise (the jump is R0 × 5 A = 150 mV; 2 ms of jitter on it would add ~30 mV)."""
+    from drivers.virtual.noise import NoiseModel
+
+    noise = NoiseModel(voltage_white_V=0.0, voltage_per_amp_V=0.0, voltage_quantum_V=0.0)
+    lab = make_lab(clock="lockstep", noise=noise, seed=1)
+    cyc = ScpiCycler.open(lab.cycler_url)
+    cyc.set_current_limits(5.4, 13.5)
+    errors = []
+    for k in range(10):
+        cyc.set_current(-5.0 if k % 2 else 5.0)
+        cyc.output(True)
+        m = cyc.measure()
+        errors.append(m.voltage_V - lab.cycler.v_true)
+        cyc.output(False)
+        lab.clock.sleep(60.0)
+    cyc.close()
+    assert max(map(abs, errors)) < 1e-3, f"readings off the true voltage by up to {1e3 * max(map(abs, errors)):.1f} mV"
