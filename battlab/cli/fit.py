@@ -49,6 +49,14 @@ AMBIENT_OPTION = click.option(
     help="Terms of the positive-OCP correction in the equilibrium fit (0 = the paper's method).",
 )
 @click.option("--rated-capacity", type=float, default=None, help="Set the cell's 1C capacity [Ah].")
+@click.option(
+    "--full-charge",
+    type=click.Choice(["v-max", "ocv-start"]),
+    default="v-max",
+    show_default=True,
+    help="SOC 1 of the fitted cell: where its OCV reaches V_max, or the state at the start of the OCV test (a "
+    "test that starts from the lab's full charge: then soc0=1 is the cell as charged).",
+)
 @click.option("--soc0", type=float, default=None, help="Start SOC of data that do not start at rest.")
 @AMBIENT_OPTION
 @click.option("--dt", type=float, default=1.0, show_default=True, help="Resample dynamic data to this step [s].")
@@ -62,6 +70,7 @@ def fit(
     params: str,
     ocp_terms: int,
     rated_capacity: float | None,
+    full_charge: str,
     soc0: float | None,
     ambients: tuple[str, ...],
     dt: float,
@@ -119,6 +128,7 @@ def fit(
             params=params,
             ocp_terms=ocp_terms,
             rated_capacity=rated_capacity,
+            full_charge=full_charge,
             soc0=soc0,
             ambient=parse_ambients(ambients),
             dt=dt,

@@ -66,6 +66,29 @@ def check_ambient_keys(paths: Sequence[str | Path], ambient: Ambient) -> None:
         raise InputError(f"--ambient {unknown[0]}=…: no data file of that name (files: {', '.join(map(str, paths))})")
 
 
+#: what SOC 1 of a fitted cell is: where its OCV reaches V_max (eq. 20), or the state at the start of the OCV test
+FULL_CHARGE = ("v-max", "ocv-start")
+
+
+def full_charge_at_ocv_start(eq: Any) -> Cell:
+    """The equilibrium fit's cell with SOC 1 moved to the state at the start of its OCV test (θ⁻ at q = 0, θ⁺ from
+    the lithium balance, eq. 10); SOC 0 stays where the OCV reaches V_min. A test that starts right after the lab's
+    full charge (a CCCV to V_max with a small cut-off current, then a rest) starts below V_max on the OCV; with
+    this window ``soc0=1`` is the cell as that charge leaves it."""
+    n0, _, p0, _ = eq.cell.stoichiometry_window()
+    tn = float(eq.theta_n0)
+    tp = (float(eq.n_Li) - float(eq.H_n) * tn) / float(eq.H_p)
+    if not (n0 < tn < 1.0 and 0.0 < tp < p0):
+        raise InputError(
+            f"the OCV test's start (θ⁻ {tn:.4f}, θ⁺ {tp:.4f}) is not inside the cell's window from V_min "
+            f"(θ⁻ {n0:.4f}, θ⁺ {p0:.4f}): it cannot be the full charge"
+        )
+    src = f"the state at the start of the OCV test {eq.curve.source}".strip()
+    values = {"sto_n_0": n0, "sto_n_100": tn, "sto_p_0": p0, "sto_p_100": tp}
+    new = eq.cell.with_values(**values)
+    return Cell(new.name, new.values, {**new.sources, **{k: src for k in values}}, new.description)
+
+
 def plan_groups(plan: Path) -> list[tuple[list[str], set[str]]]:
     """Groups (parameters, selected profile ids) of a design plan (:func:`battlab.io.plan.design_groups`)."""
     from battlab.io.plan import design_groups
@@ -176,6 +199,7 @@ def fit(
     params: str = "table9",
     ocp_terms: int = 0,
     rated_capacity: float | None = None,
+    full_charge: str = "v-max",
     soc0: float | None = None,
     ambient: Ambient = None,
     dt: float = 1.0,
@@ -188,6 +212,9 @@ def fit(
     """Identify the cell's parameters from logged data: equilibrium from an OCV test, then the dynamic
     parameters by weighted LM, group by group and cumulatively (stages from ``plan`` or ``params``).
     ``ambient`` [K]: for data that do not log it (see :data:`Ambient`); such data are refused otherwise.
+    ``full_charge``: SOC 1 of the identified cell, "v-max" (the OCV reaches V_max, eq. 20) or "ocv-start" (the
+    state at the start of the OCV test, :func:`full_charge_at_ocv_start`; for a test that starts from the lab's
+    full charge).
 
     ``output`` (the BPX path; ``summary.json`` beside it): the report is written there after every stage, before
     ``on_stage`` is called, marked partial (``summary["partial"]`` True, ``"status": "partial: stages 1–3 of 4"``,
@@ -201,11 +228,15 @@ def fit(
     from battlab.identify.experiments import experiments_from_data
     from battlab.identify.forward import ForwardModel
 
+    if full_charge not in FULL_CHARGE:
+        raise InputError(f"full charge {full_charge!r}: expected one of {', '.join(FULL_CHARGE)}")
     cell = cell if isinstance(cell, Cell) else Cell.load(cell)
     check_ambient_keys(data, ambient)
     loaded, warned = load_all(data, fix_sign=fix_sign)
     ocv = [d for d in loaded if is_ocv_test(d, float(cell["Q_nom"]))]
     dyn = [d for d in loaded if d not in ocv]
+    if full_charge == "ocv-start" and not ocv:
+        raise InputError("--full-charge ocv-start needs an OCV test (|I| <= C/10 for at least 5 h) among the data")
     summary: dict[str, Any] = {"parameters": {}, "rmse_mV": {}, "converged": True}
     extra: dict[str, Any] = {}
     report = FitReport(cell, summary, extra, warnings=warned)
@@ -221,6 +252,12 @@ def fit(
         )
         cell = eq.cell
         rep = eq.report()
+        if full_charge == "ocv-start":
+            cell = full_charge_at_ocv_start(eq)
+            n0, n1, p0, p1 = cell.stoichiometry_window()
+            rep["window"] = {"sto_n_0": n0, "sto_n_100": n1, "sto_p_0": p0, "sto_p_100": p1}
+            rep["capacity_Ah"] = cell.capacity()
+        rep["full_charge"] = full_charge
         summary["equilibrium"] = rep
         summary["rmse_mV"][d.name] = eq.rmse_mV
         summary["converged"] = eq.converged
