@@ -57,6 +57,14 @@ AMBIENT_OPTION = click.option(
     help="SOC 1 of the fitted cell: where its OCV reaches V_max, or the state at the start of the OCV test (a "
     "test that starts from the lab's full charge: then soc0=1 is the cell as charged).",
 )
+@click.option(
+    "--ocv-branch",
+    type=click.Choice(["both", "discharge", "charge"]),
+    default="both",
+    show_default=True,
+    help="Pseudo-OCV from the mean of the OCV test's discharge and charge, or from one branch (shifted by its "
+    "rest-step overpotential): with hysteresis, 'discharge' is the equilibrium that discharge tests see.",
+)
 @click.option("--soc0", type=float, default=None, help="Start SOC of data that do not start at rest.")
 @AMBIENT_OPTION
 @click.option("--dt", type=float, default=1.0, show_default=True, help="Resample dynamic data to this step [s].")
@@ -71,6 +79,7 @@ def fit(
     ocp_terms: int,
     rated_capacity: float | None,
     full_charge: str,
+    ocv_branch: str,
     soc0: float | None,
     ambients: tuple[str, ...],
     dt: float,
@@ -129,6 +138,7 @@ def fit(
             ocp_terms=ocp_terms,
             rated_capacity=rated_capacity,
             full_charge=full_charge,
+            ocv_branch=ocv_branch,
             soc0=soc0,
             ambient=parse_ambients(ambients),
             dt=dt,

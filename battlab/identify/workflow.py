@@ -200,6 +200,7 @@ def fit(
     ocp_terms: int = 0,
     rated_capacity: float | None = None,
     full_charge: str = "v-max",
+    ocv_branch: str = "both",
     soc0: float | None = None,
     ambient: Ambient = None,
     dt: float = 1.0,
@@ -214,7 +215,7 @@ def fit(
     ``ambient`` [K]: for data that do not log it (see :data:`Ambient`); such data are refused otherwise.
     ``full_charge``: SOC 1 of the identified cell, "v-max" (the OCV reaches V_max, eq. 20) or "ocv-start" (the
     state at the start of the OCV test, :func:`full_charge_at_ocv_start`; for a test that starts from the lab's
-    full charge).
+    full charge). ``ocv_branch``: the OCV test's branches that make the pseudo-OCV (:func:`ocv_curve`).
 
     ``output`` (the BPX path; ``summary.json`` beside it): the report is written there after every stage, before
     ``on_stage`` is called, marked partial (``summary["partial"]`` True, ``"status": "partial: stages 1–3 of 4"``,
@@ -245,7 +246,7 @@ def fit(
     if ocv:
         d = ocv[0]
         eq = fit_equilibrium(
-            ocv_curve(d.t, d.current, d.voltage, source=d.source),
+            ocv_curve(d.t, d.current, d.voltage, source=d.source, branch=ocv_branch),
             cell,
             ocp_terms=ocp_terms,
             rated_capacity=rated_capacity,
