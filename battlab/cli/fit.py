@@ -39,7 +39,7 @@ AMBIENT_OPTION = click.option(
     "params",
     default="table9",
     show_default=True,
-    help="Without a plan: 'table9' (paper's groups, cumulative), 'all', or comma-separated names.",
+    help="Without a plan: 'table9' (paper's groups, cumulative), 'all', 'none' (no stage) or comma-separated names.",
 )
 @click.option(
     "--ocp-terms",
@@ -70,6 +70,14 @@ AMBIENT_OPTION = click.option(
 @click.option("--dt", type=float, default=1.0, show_default=True, help="Resample dynamic data to this step [s].")
 @click.option("--max-iter", type=int, default=40, show_default=True, help="Function evaluations per stage.")
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
+@click.option(
+    "--fit-values",
+    "value_stages",
+    multiple=True,
+    metavar="[TARGET:]NAMES",
+    help="After the stages, fit cell values outside the 18 (e.g. R_c, E_kappa, h2a; C1+C2: one factor on both) to "
+    "the voltage (default) or the surface 'temperature:' by finite differences; repeat for several fits, in order.",
+)
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="cell.bpx.json")
 def fit(
     data: tuple[str, ...],
@@ -85,6 +93,7 @@ def fit(
     dt: float,
     max_iter: int,
     fix_sign: bool,
+    value_stages: tuple[str, ...],
     output: str,
 ) -> None:
     """Identify CELL's parameters from DATA (equilibrium from an OCV test, dynamics by weighted LM).
@@ -129,7 +138,18 @@ def fit(
         )
         workflow.stage_figures(r, out.with_name(f"{stem}.stage{k}"))
 
+    def show_values(vf: Any) -> None:
+        unit = "mV" if vf.target == "voltage" else "K"
+        before = ", ".join(f"{k} {v:.2f}" for k, v in vf.rmse_before.items())
+        after = ", ".join(f"{k} {v:.2f}" for k, v in vf.rmse_after.items())
+        click.echo(
+            f"value fit ({vf.target}; {vf.evaluations} evaluations, {vf.seconds:.0f} s): "
+            + ", ".join(f"{k} {vf.start[k]:.4g} -> {v:.4g}" for k, v in vf.values.items())
+            + f"; RMSE [{unit}] {before} -> {after}"
+        )
+
     try:
+        values_ = [workflow.parse_value_stage(v) for v in value_stages]
         rep = workflow.fit(
             data,
             cell_name,
@@ -144,6 +164,8 @@ def fit(
             dt=dt,
             max_iter=max_iter,
             fix_sign=fix_sign,
+            value_stages=values_,
+            on_values=show_values,
             on_stage=show,
             on_equilibrium=show_equilibrium,
             output=out,

@@ -113,6 +113,8 @@ def stages(params: str, plan: str | Path | None, experiments: list[Any]) -> list
             out[0] = Stage(out[0].names, out[0].experiments + rest)
         return out
     p = params.strip()
+    if p == "none":
+        return []
     if p == "table9":
         return [Stage(g, tuple(experiments) if k == 0 else ()) for k, g in enumerate(parameters.TABLE9_GROUPS)]
     names = list(parameters.NAMES) if p == "all" else [s.strip() for s in p.split(",") if s.strip()]
@@ -206,8 +208,10 @@ def fit(
     dt: float = 1.0,
     max_iter: int = 40,
     fix_sign: bool = False,
+    value_stages: Sequence[tuple[str, str]] = (),
     on_stage: Callable[[int, Any], None] | None = None,
     on_equilibrium: Callable[[str, Any], None] | None = None,
+    on_values: Callable[[Any], None] | None = None,
     output: str | Path | None = None,
 ) -> FitReport:
     """Identify the cell's parameters from logged data: equilibrium from an OCV test, then the dynamic
@@ -222,8 +226,11 @@ def fit(
     ``"converged"`` False; the BPX's fit report says the same) until the last stage, and then complete. The
     equilibrium fit, when dynamic stages follow, is written before stage 1 starts, marked partial the same way
     (``"partial: equilibrium only (stages 0 of 4)"``, ``stages_done`` 0); ``on_equilibrium(data name, result)`` is
-    called then (after that write, or without stages after the final one). A failure in a stage raises
-    :class:`StageFailed` naming it, with the finished stages (or the equilibrium fit) kept on disk."""
+    called then (after that write, or without stages after the final one). ``value_stages`` ((target, names),
+    e.g. ("voltage", "R_c,E_kappa"), ("temperature", "C1+C2,h2a")): fits of cell values outside the 18 by finite
+    differences (:mod:`battlab.identify.values`), in order, after the stages (``params`` "none": no stage); each
+    is written when done and reported to ``on_values``. A failure in a stage raises :class:`StageFailed` naming
+    it, with the finished stages (or the equilibrium fit) kept on disk."""
     from battlab.identify import fit as F
     from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
     from battlab.identify.experiments import experiments_from_data
@@ -295,7 +302,10 @@ def fit(
             if on_equilibrium is not None:
                 on_equilibrium(report.equilibrium_data, report.equilibrium)
         try:
-            F.fit_groupwise(cell, plan_stages, options=F.Options(max_nfev=max_iter), forward=fm, progress=stage_done)
+            if plan_stages:
+                F.fit_groupwise(
+                    cell, plan_stages, options=F.Options(max_nfev=max_iter), forward=fm, progress=stage_done
+                )
         except F.StageError as exc:
             raise StageFailed(exc.stage, exc.total, exc.cause, report, written, kept) from exc.cause
     else:
@@ -307,7 +317,76 @@ def fit(
             report.write(output)
         if report.equilibrium is not None and on_equilibrium is not None:
             on_equilibrium(report.equilibrium_data, report.equilibrium)
+    if value_stages:
+        _fit_value_stages(
+            report, dyn, value_stages, dt=dt, soc0=soc0, ambient=ambient, max_iter=max_iter, on_values=on_values
+        )
+        if output is not None:
+            report.write(output)
     return report
+
+
+def traces_of(dyn: Sequence[Any], cell: Cell, *, dt: float, soc0: float | None, ambient: Ambient) -> list[Any]:
+    """The dynamic data as value-fit traces: the fit's experiments with the logged surface temperature [K] at
+    their samples (NaN where not logged)."""
+    from battlab.identify.experiments import experiments_from_data, segments
+    from battlab.identify.values import Trace
+    from battlab.io.data import SURFACE
+
+    out = []
+    for d in dyn:
+        exps = experiments_from_data(d, cell, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
+        segs = segments(d)
+        surf = d.temperature_K(SURFACE)
+        for e, sl in zip(exps, segs if len(segs) == len(exps) else [None] * len(exps), strict=True):
+            if surf is None or sl is None:
+                temp = np.full(e.voltage.size, np.nan)
+            else:
+                temp = np.interp(d.t[sl.start] + e.profile.t, d.t[sl], surf[sl])
+            out.append(Trace(e.name, e.profile, e.soc0, e.ambient, e.T0, e.voltage, temp))
+    return out
+
+
+def parse_value_stage(text: str) -> tuple[str, str]:
+    """``[TARGET:]NAMES`` (TARGET voltage, the default, or temperature) as (target, names)."""
+    from battlab.identify.values import TARGETS
+
+    target, _, names = text.rpartition(":")
+    target = target.strip() or "voltage"
+    if target not in TARGETS:
+        raise InputError(f"--fit-values {text!r}: target {target!r} is not one of {', '.join(TARGETS)}")
+    return target, names
+
+
+def _fit_value_stages(
+    report: FitReport,
+    dyn: Sequence[Any],
+    value_stages: Sequence[tuple[str, str]],
+    *,
+    dt: float,
+    soc0: float | None,
+    ambient: Ambient,
+    max_iter: int,
+    on_values: Callable[[Any], None] | None,
+) -> None:
+    """Run the value fits on ``report.cell`` in order (each with about ``max_iter`` evaluations, an evaluation a
+    simulation of every trace); the report's cell, summary and BPX metadata follow."""
+    from battlab.identify.values import fit_values, parse_names
+
+    if not dyn:
+        raise InputError("--fit-values needs dynamic data (tests other than the OCV test)")
+    stages_ = [(target, parse_names(names, report.cell)) for target, names in value_stages]
+    traces = traces_of(dyn, report.cell, dt=dt, soc0=soc0, ambient=ambient)
+    done = report.summary.setdefault("value_fits", [])
+    for target, names in stages_:
+        vf = fit_values(report.cell, traces, names, target=target, max_nfev=max(1, max_iter // (len(names) + 1)))
+        report.cell = vf.cell
+        done.append(vf.report())
+        for k, v in vf.values.items():
+            report.summary["parameters"][k] = {"value": v, "ci95": [None, None], "at_bound": False}
+        report.extra["value_fits"] = list(done)
+        if on_values is not None:
+            on_values(vf)
 
 
 def _summarise_equilibrium_only(summary: dict[str, Any], extra: dict[str, Any], total: int) -> None:
