@@ -78,6 +78,12 @@ AMBIENT_OPTION = click.option(
     help="After the stages, fit cell values outside the 18 (e.g. R_c, E_kappa, h2a; C1+C2: one factor on both) to "
     "the voltage (default) or the surface 'temperature:' by finite differences; repeat for several fits, in order.",
 )
+@click.option(
+    "--arrhenius",
+    is_flag=True,
+    help="Fit the stages on the data within 5 K of T_ref, then refit their parameters with an activation energy "
+    "(D_s, k, D_e_scale, kappa_scale) per other ambient and set the activation energies from them.",
+)
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="cell.bpx.json")
 def fit(
     data: tuple[str, ...],
@@ -94,6 +100,7 @@ def fit(
     max_iter: int,
     fix_sign: bool,
     value_stages: tuple[str, ...],
+    arrhenius: bool,
     output: str,
 ) -> None:
     """Identify CELL's parameters from DATA (equilibrium from an OCV test, dynamics by weighted LM).
@@ -139,6 +146,15 @@ def fit(
         workflow.stage_figures(r, out.with_name(f"{stem}.stage{k}"))
 
     def show_values(vf: Any) -> None:
+        if hasattr(vf, "energies"):  # the Arrhenius refits
+            click.echo(
+                "activation energies [kJ/mol]: "
+                + ", ".join(f"{k} {vf.start[k] / 1e3:.1f} -> {v / 1e3:.1f}" for k, v in vf.energies.items())
+                + (f" (clipped: {', '.join(vf.clipped)})" if vf.clipped else "")
+            )
+            for amb, vals in vf.values.items():
+                click.echo(f"  at {amb - 273.15:.1f} degC: " + ", ".join(f"{k} {v:.4g}" for k, v in vals.items()))
+            return
         unit = "mV" if vf.target == "voltage" else "K"
         before = ", ".join(f"{k} {v:.2f}" for k, v in vf.rmse_before.items())
         after = ", ".join(f"{k} {v:.2f}" for k, v in vf.rmse_after.items())
@@ -165,6 +181,7 @@ def fit(
             max_iter=max_iter,
             fix_sign=fix_sign,
             value_stages=values_,
+            arrhenius=arrhenius,
             on_values=show_values,
             on_stage=show,
             on_equilibrium=show_equilibrium,

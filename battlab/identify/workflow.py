@@ -209,6 +209,7 @@ def fit(
     max_iter: int = 40,
     fix_sign: bool = False,
     value_stages: Sequence[tuple[str, str]] = (),
+    arrhenius: bool = False,
     on_stage: Callable[[int, Any], None] | None = None,
     on_equilibrium: Callable[[str, Any], None] | None = None,
     on_values: Callable[[Any], None] | None = None,
@@ -229,8 +230,10 @@ def fit(
     called then (after that write, or without stages after the final one). ``value_stages`` ((target, names),
     e.g. ("voltage", "R_c,E_kappa"), ("temperature", "C1+C2,h2a")): fits of cell values outside the 18 by finite
     differences (:mod:`battlab.identify.values`), in order, after the stages (``params`` "none": no stage); each
-    is written when done and reported to ``on_values``. A failure in a stage raises :class:`StageFailed` naming
-    it, with the finished stages (or the equilibrium fit) kept on disk."""
+    is written when done and reported to ``on_values``. ``arrhenius``: the stages fit the data within 5 K of the
+    cell's T_ref only; then the last stage's parameters with an activation energy are refitted per other ambient and
+    the activation energies set from them (:mod:`battlab.identify.arrhenius`), reported to ``on_values``. A failure
+    in a stage raises :class:`StageFailed` naming it, with the finished stages (or the equilibrium fit) kept on disk."""
     from battlab.identify import fit as F
     from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
     from battlab.identify.experiments import experiments_from_data
@@ -280,6 +283,13 @@ def fit(
             e for d in dyn for e in experiments_from_data(d, cell, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
         ]
         fm = ForwardModel(cell, v_margin=0.15)
+        groups: dict[float, list[Any]] = {}
+        if arrhenius:
+            from battlab.identify.arrhenius import split_by_ambient
+
+            exps, groups = split_by_ambient(exps, float(cell["T_ref"]))
+            if not exps:
+                raise InputError(f"--arrhenius needs data within 5 K of the cell's T_ref {float(cell['T_ref']):g} K")
         plan_stages = stages(params, plan, exps)
         base_summary, base_extra = copy.deepcopy(summary), copy.deepcopy(extra)
 
@@ -308,6 +318,20 @@ def fit(
                 )
         except F.StageError as exc:
             raise StageFailed(exc.stage, exc.total, exc.cause, report, written, kept) from exc.cause
+        if arrhenius:
+            from battlab.identify.arrhenius import fit_arrhenius
+
+            names = [n for r in report.results for n in r.names] if report.results else []
+            arr = fit_arrhenius(report.cell, groups, names, forward=fm, options=F.Options(max_nfev=max_iter))
+            report.cell = arr.cell
+            report.summary["arrhenius"] = arr.report()
+            report.extra["arrhenius"] = {"E_J_per_mol": arr.energies, "clipped": arr.clipped}
+            for k, v in arr.energies.items():
+                report.summary["parameters"][k] = {"value": v, "ci95": [None, None], "at_bound": k in arr.clipped}
+            if output is not None:
+                written = report.write(output)
+            if on_values is not None:
+                on_values(arr)
     else:
         report.cell = cell
     if not report.results:  # no stage: the equilibrium fit (or the start cell) alone
