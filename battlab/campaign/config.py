@@ -16,8 +16,16 @@ Example (every key optional)::
     groups = "computed"           # computed | table9
     [noise]
     repeats = 3                   # repeated trials of the noise profiles (eqs. 36-40)
+    profiles_per_direction = 3    # charge-only and discharge-only pulse profiles, spread over intensity
+    max_duration_s = 3600.0       # the longest noise profile [s] (--quick: 900)
     [fit]
-    max_evaluations = 40
+    max_evaluations = 40          # per stage (the optimiser's function evaluations)
+    polish = 8                    # Gauss-Newton polish simulations after an optimiser stopped by max_evaluations
+    [conventional]
+    c_rates = []                  # constant-current tests (C; < 0 discharge from full, > 0 charge from empty),
+                                  # run with UDDS from SOC 0.8; empty: the paper's set (--quick: -1/3, -2)
+    [validation]
+    c_rates = []                  # discharges from full (C, > 0), with US06 from SOC 0.8; empty: 0.5, 1 (--quick: 1)
     [stages]
     skip = []                     # stage names to leave out (e.g. ["conventional"])
 
@@ -59,11 +67,24 @@ class DesignSection:
 @dataclass(frozen=True)
 class NoiseSection:
     repeats: int = 3
+    profiles_per_direction: int = 3
+    max_duration_s: float = 3600.0
 
 
 @dataclass(frozen=True)
 class FitSection:
     max_evaluations: int = 40
+    polish: int = 8
+
+
+@dataclass(frozen=True)
+class ConventionalSection:
+    c_rates: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True)
+class ValidationSection:
+    c_rates: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -80,6 +101,8 @@ class CampaignConfig:
     design: DesignSection = field(default_factory=DesignSection)
     noise: NoiseSection = field(default_factory=NoiseSection)
     fit: FitSection = field(default_factory=FitSection)
+    conventional: ConventionalSection = field(default_factory=ConventionalSection)
+    validation: ValidationSection = field(default_factory=ValidationSection)
     stages: StagesSection = field(default_factory=StagesSection)
     quick: bool = False
 
@@ -93,15 +116,23 @@ QUICK_LIBRARY_IDS: tuple[int, ...] = (1, 19, 37, 109, 379, 397, 415, 487, 505, 5
 
 
 def quick(config: CampaignConfig) -> CampaignConfig:
-    """The reduced campaign: a small library, fewer profiles per group and repeats, a shorter fit."""
+    """The reduced campaign: a small library, fewer profiles per group, noise profiles and repeats, a short fit
+    (5 evaluations and 1 polish simulation per stage); the tester rests 300 s instead of 600 s after each
+    measured profile, the conventional baseline is the C/3 and 2C discharges plus UDDS, and validation is the 1C
+    discharge plus US06 (:mod:`battlab.campaign.pipeline`)."""
     lib = config.library if config.library.ids else LibrarySection(QUICK_LIBRARY_IDS)
     return replace(
         config,
         quick=True,
         library=lib,
         design=replace(config.design, profiles_per_group=min(config.design.profiles_per_group, 2)),
-        noise=replace(config.noise, repeats=min(config.noise.repeats, 2)),
-        fit=replace(config.fit, max_evaluations=min(config.fit.max_evaluations, 15)),
+        noise=replace(
+            config.noise,
+            repeats=min(config.noise.repeats, 2),
+            profiles_per_direction=min(config.noise.profiles_per_direction, 2),
+            max_duration_s=min(config.noise.max_duration_s, 900.0),
+        ),
+        fit=replace(config.fit, max_evaluations=min(config.fit.max_evaluations, 5), polish=min(config.fit.polish, 1)),
     )
 
 
@@ -124,6 +155,10 @@ def _coerce(value: Any, default: Any, where: str) -> Any:
     if isinstance(default, tuple):
         if not isinstance(value, list):
             raise InputError(f"{where}: expected a list, got {value!r}")
+        if where.endswith(".c_rates"):
+            if not all(isinstance(v, int | float) and not isinstance(v, bool) and v != 0 for v in value):
+                raise InputError(f"{where}: expected a list of non-zero C-rates, got {value!r}")
+            return tuple(float(v) for v in value)
         kind = int if where.endswith(".ids") else str
         if not all(isinstance(v, kind) and not isinstance(v, bool) for v in value):
             raise InputError(f"{where}: expected a list of {kind.__name__}, got {value!r}")

@@ -57,6 +57,7 @@ def main() -> None:
 
 def _register() -> None:
     # each command module registers here (one import line each)
+    from battlab.cli.campaign import campaign
     from battlab.cli.design import design, groups, sensitivity
     from battlab.cli.export import export
     from battlab.cli.fit import fit, validate
@@ -65,7 +66,20 @@ def _register() -> None:
     from battlab.cli.simulate import simulate
     from battlab.cli.virtual_tester import virtual_tester
 
-    for cmd in (simulate, library, export, virtual_tester, sensitivity, groups, design, fit, validate, run, runs):
+    for cmd in (
+        simulate,
+        library,
+        export,
+        virtual_tester,
+        sensitivity,
+        groups,
+        design,
+        fit,
+        validate,
+        run,
+        runs,
+        campaign,
+    ):
         main.add_command(cmd)
 
 

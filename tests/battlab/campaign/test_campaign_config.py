@@ -27,6 +27,8 @@ def test_defaults_and_values(tmp_path: Path) -> None:
     assert c.design.criterion == "E" and c.design.profiles_per_group == 3
     assert c.stages.skip == ("conventional",)
     assert c.campaign.truth == "nca18650-true"
+    c = load(write(tmp_path, "[conventional]\nc_rates = [-2, 0.5]\n[validation]\nc_rates = [1]\n"))
+    assert c.conventional.c_rates == (-2.0, 0.5) and c.validation.c_rates == (1.0,)
 
 
 def test_quick_reduces_but_keeps_given_ids(tmp_path: Path) -> None:
@@ -46,6 +48,7 @@ def test_quick_reduces_but_keeps_given_ids(tmp_path: Path) -> None:
         ("[stages]\nskip = ['sweeep']\n", r"unknown stage 'sweeep' \(did you mean 'sweep'\?\)"),
         ("[library]\nids = ['a']\n", r"library.ids: expected a list of int"),
         ("[design\n", r"not valid TOML"),
+        ("[conventional]\nc_rates = [0, -1]\n", r"conventional.c_rates: expected a list of non-zero C-rates"),
     ],
 )
 def test_mistakes_are_one_clear_error(tmp_path: Path, text: str, message: str) -> None:

@@ -1,0 +1,135 @@
+"""The campaign as one command: a failing stage is one line and exit 1 with the finished stages kept, and a rerun
+resumes without running them again; a reduced campaign end to end (slow) with its summary and its report rendered
+in headless Chromium."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import pytest
+from click.testing import CliRunner
+
+from battlab.campaign import pipeline
+from battlab.campaign.stages import StageContext, StageOutput
+from battlab.cli import main
+
+
+def _invoke(*args: str) -> Any:
+    return CliRunner().invoke(main, ["campaign", "--quiet", *args])
+
+
+def test_a_failed_stage_is_one_line_and_a_rerun_resumes_after_the_finished_ones(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Stages capacity check -> library -> capacity check -> report (the others left out): the library stage fails
+    once; the rerun keeps the capacity check's record and runs (and logs) nothing again before the library."""
+    cfg = tmp_path / "campaign.toml"
+    cfg.write_text('[stages]\nskip = ["ocv"]\n')
+    out = tmp_path / "camp"
+    real = pipeline._FUNCS["library"]
+
+    def broken(camp: Any) -> Any:
+        def run(ctx: StageContext) -> StageOutput:
+            raise OSError("disk full (injected)")
+
+        return run
+
+    monkeypatch.setitem(pipeline._FUNCS, "library", broken)
+    r = _invoke("--config", str(cfg), "-o", str(out))
+    assert r.exit_code == 1
+    assert "campaign stage library failed: disk full (injected)" in r.output
+    assert "Traceback" not in r.output
+    state = json.loads((out / "campaign.json").read_text())
+    assert list(state["stages"]) == ["capacity_before"]
+    log = out / "runs" / "capacity_before.h5"
+    mtime = log.stat().st_mtime_ns
+
+    monkeypatch.setitem(pipeline._FUNCS, "library", real)
+    r = _invoke("--config", str(cfg), "-o", str(out))
+    assert r.exit_code == 0, r.output
+    summary = json.loads((out / "summary.json").read_text())
+    status = {s["name"]: s["status"] for s in summary["stages"]}
+    assert status == {"capacity_before": "skipped", "library": "ran", "capacity_after": "ran", "report": "ran"}
+    assert log.stat().st_mtime_ns == mtime  # the finished stage's run was not repeated
+    assert not list((out / "runs").glob("capacity_before.interrupted-*"))
+    assert (out / "report.html").is_file()
+
+
+def test_a_directory_of_another_campaign_is_refused(tmp_path: Path) -> None:
+    out = tmp_path / "camp"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    r = _invoke("-o", str(out))
+    assert r.exit_code == 2 and "is not a campaign directory" in r.output
+
+
+def test_an_output_below_a_file_is_one_line(tmp_path: Path) -> None:
+    blocker = tmp_path / "afile"
+    blocker.write_text("x")
+    r = _invoke("-o", str(blocker / "sub"))
+    assert r.exit_code == 2 and f"{blocker} is a file, not a directory" in r.output
+    assert blocker.read_text() == "x"
+
+
+def test_bad_arguments_are_one_line(tmp_path: Path) -> None:
+    r = _invoke("--cycler", "socket://127.0.0.1:1", "-o", str(tmp_path / "c"))
+    assert r.exit_code == 2 and "give both --cycler and --chamber" in r.output
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[fit]\nmax_evals = 3\n")
+    r = _invoke("--config", str(cfg), "-o", str(tmp_path / "c"))
+    assert r.exit_code == 2 and "fit.max_evals: unknown key" in r.output
+
+
+#: the smallest campaign that still runs every stage: three library profiles, one per group, one noise profile per
+#: direction, two evaluations per fit stage, one constant-current test each for the baseline and validation
+SMALL = """
+[library]
+ids = [19, 37, 541]
+[design]
+profiles_per_group = 1
+[noise]
+repeats = 2
+profiles_per_direction = 1
+max_duration_s = 900.0
+[fit]
+max_evaluations = 2
+polish = 0
+[conventional]
+c_rates = [-2.0]
+[validation]
+c_rates = [2.0]
+"""
+
+
+@pytest.mark.slow
+def test_a_reduced_campaign_end_to_end(tmp_path: Path) -> None:
+    from battlab.report.browser import check_page, find_chromium
+
+    cfg = tmp_path / "campaign.toml"
+    cfg.write_text(SMALL)
+    out = tmp_path / "camp"
+    r = _invoke("--config", str(cfg), "--quick", "-o", str(out))
+    assert r.exit_code == 0, r.output
+    s = json.loads((out / "summary.json").read_text())
+    names = [x["name"] for x in s["stages"]]
+    assert names == list(pipeline.STAGE_NAMES)
+    assert all(x["status"] == "ran" and x["wall_s"] > 0 for x in s["stages"])
+    assert s["lab_hours"] > 40  # at least the C/20 cycle
+    rec = {x["parameter"]: x for x in s["recovery"]}
+    assert len(rec) == 18 and rec["D_s_n"]["truth"] == pytest.approx(2.634e-14, rel=1e-3)
+    table = s["validation_rmse_mV"]
+    assert len(table) == 2 and all(set(row) == {"nominal", "conventional", "OED"} for row in table.values())
+    assert all(0 < v < 500 for row in table.values() for v in row.values())
+    page = out / "report.html"
+    text = page.read_text()
+    for title in ("Capacity before and after", "Noise model", "Identified parameters", "Validation", "Run-log health"):
+        assert title in text
+    if find_chromium() is None:
+        if os.environ.get("CI"):
+            pytest.fail("CI: chromium is not installed")
+        pytest.skip("chromium not installed")
+    check = check_page(page, tmp_path / "shot.png")
+    assert check.images >= 8 and check.images == check.images_loaded and not check.blank
