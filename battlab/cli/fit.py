@@ -43,8 +43,8 @@ AMBIENT_OPTION = click.option(
     "--groups",
     "params",
     default=None,
-    help="Without a plan: 'table9' (paper's groups, cumulative), 'all', or comma-separated names [default: the "
-    "groups of a run log's plan, else table9].",
+    help="Without a plan: 'table9' (paper's groups, cumulative), 'all', 'none' (no stage) or comma-separated names "
+    "[default: the groups of a run log's plan, else table9].",
 )
 @click.option(
     "--ocp-terms",
@@ -54,12 +54,42 @@ AMBIENT_OPTION = click.option(
     help="Terms of the positive-OCP correction in the equilibrium fit (0 = the paper's method).",
 )
 @click.option("--rated-capacity", type=float, default=None, help="Set the cell's 1C capacity [Ah].")
+@click.option(
+    "--full-charge",
+    type=click.Choice(["v-max", "ocv-start"]),
+    default="v-max",
+    show_default=True,
+    help="SOC 1 of the fitted cell: where its OCV reaches V_max, or the state at the start of the OCV test (a "
+    "test that starts from the lab's full charge: then soc0=1 is the cell as charged).",
+)
+@click.option(
+    "--ocv-branch",
+    type=click.Choice(["both", "discharge", "charge"]),
+    default="both",
+    show_default=True,
+    help="Pseudo-OCV from the mean of the OCV test's discharge and charge, or from one branch (shifted by its "
+    "rest-step overpotential): with hysteresis, 'discharge' is the equilibrium that discharge tests see.",
+)
 @click.option("--soc0", type=float, default=None, help="Start SOC of data that do not start at rest.")
 @AMBIENT_OPTION
 @click.option("--dt", type=float, default=1.0, show_default=True, help="Resample dynamic data to this step [s].")
 @click.option("--max-iter", type=int, default=40, show_default=True, help="Function evaluations per stage.")
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
 @extension_option()
+@click.option(
+    "--fit-values",
+    "value_stages",
+    multiple=True,
+    metavar="[TARGET:]NAMES",
+    help="After the stages, fit cell values outside the 18 (e.g. R_c, E_kappa, h2a; C1+C2: one factor on both) to "
+    "the voltage (default) or the surface 'temperature:' by finite differences; repeat for several fits, in order.",
+)
+@click.option(
+    "--arrhenius",
+    is_flag=True,
+    help="Fit the stages on the data within 5 K of T_ref, then refit their parameters with an activation energy "
+    "(D_s, k, D_e_scale, kappa_scale) per other ambient and set the activation energies from them.",
+)
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="cell.bpx.json")
 def fit(
     data: tuple[str, ...],
@@ -68,12 +98,16 @@ def fit(
     params: str | None,
     ocp_terms: int,
     rated_capacity: float | None,
+    full_charge: str,
+    ocv_branch: str,
     soc0: float | None,
     ambients: tuple[str, ...],
     dt: float,
     max_iter: int,
     fix_sign: bool,
     extensions: tuple[str, ...],
+    value_stages: tuple[str, ...],
+    arrhenius: bool,
     output: str,
 ) -> None:
     """Identify CELL's parameters from DATA (equilibrium from an OCV test, dynamics by weighted LM).
@@ -123,7 +157,27 @@ def fit(
         )
         workflow.stage_figures(r, out.with_name(f"{stem}.stage{k}"))
 
+    def show_values(vf: Any) -> None:
+        if hasattr(vf, "energies"):  # the Arrhenius refits
+            click.echo(
+                "activation energies [kJ/mol]: "
+                + ", ".join(f"{k} {vf.start[k] / 1e3:.1f} -> {v / 1e3:.1f}" for k, v in vf.energies.items())
+                + (f" (clipped: {', '.join(vf.clipped)})" if vf.clipped else "")
+            )
+            for amb, vals in vf.values.items():
+                click.echo(f"  at {amb - 273.15:.1f} degC: " + ", ".join(f"{k} {v:.4g}" for k, v in vals.items()))
+            return
+        unit = "mV" if vf.target == "voltage" else "K"
+        before = ", ".join(f"{k} {v:.2f}" for k, v in vf.rmse_before.items())
+        after = ", ".join(f"{k} {v:.2f}" for k, v in vf.rmse_after.items())
+        click.echo(
+            f"value fit ({vf.target}; {vf.evaluations} evaluations, {vf.seconds:.0f} s): "
+            + ", ".join(f"{k} {vf.start[k]:.4g} -> {v:.4g}" for k, v in vf.values.items())
+            + f"; RMSE [{unit}] {before} -> {after}"
+        )
+
     try:
+        values_ = [workflow.parse_value_stage(v) for v in value_stages]
         rep = workflow.fit(
             data,
             start,
@@ -131,11 +185,16 @@ def fit(
             params=params,
             ocp_terms=ocp_terms,
             rated_capacity=rated_capacity,
+            full_charge=full_charge,
+            ocv_branch=ocv_branch,
             soc0=soc0,
             ambient=parse_ambients(ambients),
             dt=dt,
             max_iter=max_iter,
             fix_sign=fix_sign,
+            value_stages=values_,
+            arrhenius=arrhenius,
+            on_values=show_values,
             on_stage=show,
             on_equilibrium=show_equilibrium,
             output=out,

@@ -69,19 +69,31 @@ def _branches(t: np.ndarray, current: np.ndarray, threshold: float) -> list[tupl
 
 
 def ocv_curve(
-    t: np.ndarray, current: np.ndarray, voltage: np.ndarray, *, n_grid: int = 600, source: str = ""
+    t: np.ndarray,
+    current: np.ndarray,
+    voltage: np.ndarray,
+    *,
+    n_grid: int = 600,
+    source: str = "",
+    branch: str = "both",
 ) -> OcvCurve:
-    """The pseudo-OCV from a slow test (current positive = charge, A; t in s); see the module docstring."""
+    """The pseudo-OCV from a slow test (current positive = charge, A; t in s); see the module docstring.
+
+    ``branch`` "discharge" (or "charge") uses that branch alone, shifted by its rest-step overpotential: the
+    equilibrium of a cell with hysteresis on the side its discharge (charge) tests see, instead of the mean."""
+    if branch not in ("both", "discharge", "charge"):
+        raise InputError(f"OCV branch {branch!r}: expected both, discharge or charge")
     t, current, voltage = (np.asarray(a, float) for a in (t, current, voltage))
     if t.size < 10:
         raise InputError(f"{source or 'OCV data'}: too few samples ({t.size}) for an OCV curve")
     q = np.concatenate([[0.0], np.cumsum(-current[:-1] * np.diff(t))]) / 3600.0
     imax = float(np.max(np.abs(current)))
     runs = _branches(t, current, 0.2 * imax)
-    dis = [r for r in runs if r[2] < 0]
-    chg = [r for r in runs if r[2] > 0]
+    dis = [r for r in runs if r[2] < 0 and branch != "charge"]
+    chg = [r for r in runs if r[2] > 0 and branch != "discharge"]
     if not dis and not chg:
-        raise InputError(f"{source or 'OCV data'}: no constant-current branch found")
+        what = "" if branch == "both" else f"{branch} "
+        raise InputError(f"{source or 'OCV data'}: no constant-current {what}branch found")
 
     def longest(rs: list[tuple[int, int, int]]) -> tuple[int, int, int] | None:
         return max(rs, key=lambda r: r[1] - r[0]) if rs else None

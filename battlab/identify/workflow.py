@@ -66,6 +66,29 @@ def check_ambient_keys(paths: Sequence[str | Path], ambient: Ambient) -> None:
         raise InputError(f"--ambient {unknown[0]}=…: no data file of that name (files: {', '.join(map(str, paths))})")
 
 
+#: what SOC 1 of a fitted cell is: where its OCV reaches V_max (eq. 20), or the state at the start of the OCV test
+FULL_CHARGE = ("v-max", "ocv-start")
+
+
+def full_charge_at_ocv_start(eq: Any) -> Cell:
+    """The equilibrium fit's cell with SOC 1 moved to the state at the start of its OCV test (θ⁻ at q = 0, θ⁺ from
+    the lithium balance, eq. 10); SOC 0 stays where the OCV reaches V_min. A test that starts right after the lab's
+    full charge (a CCCV to V_max with a small cut-off current, then a rest) starts below V_max on the OCV; with
+    this window ``soc0=1`` is the cell as that charge leaves it."""
+    n0, _, p0, _ = eq.cell.stoichiometry_window()
+    tn = float(eq.theta_n0)
+    tp = (float(eq.n_Li) - float(eq.H_n) * tn) / float(eq.H_p)
+    if not (n0 < tn < 1.0 and 0.0 < tp < p0):
+        raise InputError(
+            f"the OCV test's start (θ⁻ {tn:.4f}, θ⁺ {tp:.4f}) is not inside the cell's window from V_min "
+            f"(θ⁻ {n0:.4f}, θ⁺ {p0:.4f}): it cannot be the full charge"
+        )
+    src = f"the state at the start of the OCV test {eq.curve.source}".strip()
+    values = {"sto_n_0": n0, "sto_n_100": tn, "sto_p_0": p0, "sto_p_100": tp}
+    new = eq.cell.with_values(**values)
+    return Cell(new.name, new.values, {**new.sources, **{k: src for k in values}}, new.description)
+
+
 def plan_groups(plan: Path) -> list[tuple[list[str], set[str]]]:
     """Groups (parameters, selected profile ids) of a design plan (:func:`battlab.io.plan.design_groups`)."""
     from battlab.io.plan import design_groups
@@ -113,6 +136,8 @@ def stages(
             out[-1] = Stage(out[-1].names + tuple(extra), out[-1].experiments)
         return out
     p = (params or "table9").strip()
+    if p == "none":
+        return []
     if p == "table9":
         table9 = list(parameters.TABLE9_GROUPS)
         table9[-1] = table9[-1] + tuple(extra)
@@ -214,13 +239,18 @@ def fit(
     params: str | None = "table9",
     ocp_terms: int = 0,
     rated_capacity: float | None = None,
+    full_charge: str = "v-max",
+    ocv_branch: str = "both",
     soc0: float | None = None,
     ambient: Ambient = None,
     dt: float = 1.0,
     max_iter: int = 40,
     fix_sign: bool = False,
+    value_stages: Sequence[tuple[str, str]] = (),
+    arrhenius: bool = False,
     on_stage: Callable[[int, Any], None] | None = None,
     on_equilibrium: Callable[[str, Any], None] | None = None,
+    on_values: Callable[[Any], None] | None = None,
     output: str | Path | None = None,
     hold_radii: bool = True,
 ) -> FitReport:
@@ -231,26 +261,38 @@ def fit(
     A run log (with its plan in its metadata, or ``plan``) is cut at its plan's profile steps, one experiment each
     (:mod:`battlab.identify.runlog`). ``hold_radii``: where a stage would estimate all four orbit parameters of an
     electrode, its R_s is held and the invariants are reported (:mod:`battlab.identify.reduced`).
+    ``full_charge``: SOC 1 of the identified cell, "v-max" (the OCV reaches V_max, eq. 20) or "ocv-start" (the
+    state at the start of the OCV test, :func:`full_charge_at_ocv_start`; for a test that starts from the lab's
+    full charge). ``ocv_branch``: the OCV test's branches that make the pseudo-OCV (:func:`ocv_curve`).
 
     ``output`` (the BPX path; ``summary.json`` beside it): the report is written there after every stage, before
     ``on_stage`` is called, marked partial (``summary["partial"]`` True, ``"status": "partial: stages 1–3 of 4"``,
     ``"converged"`` False; the BPX's fit report says the same) until the last stage, and then complete. The
     equilibrium fit, when dynamic stages follow, is written before stage 1 starts, marked partial the same way
     (``"partial: equilibrium only (stages 0 of 4)"``, ``stages_done`` 0); ``on_equilibrium(data name, result)`` is
-    called then (after that write, or without stages after the final one). A failure in a stage raises
-    :class:`StageFailed` naming it, with the finished stages (or the equilibrium fit) kept on disk."""
+    called then (after that write, or without stages after the final one). ``value_stages`` ((target, names),
+    e.g. ("voltage", "R_c,E_kappa"), ("temperature", "C1+C2,h2a")): fits of cell values outside the 18 by finite
+    differences (:mod:`battlab.identify.values`), in order, after the stages (``params`` "none": no stage); each
+    is written when done and reported to ``on_values``. ``arrhenius``: the stages fit the data within 5 K of the
+    cell's T_ref only; then the last stage's parameters with an activation energy are refitted per other ambient and
+    the activation energies set from them (:mod:`battlab.identify.arrhenius`), reported to ``on_values``. A failure
+    in a stage raises :class:`StageFailed` naming it, with the finished stages (or the equilibrium fit) kept on disk."""
     from battlab.identify import fit as F
     from battlab.identify import runlog
     from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
     from battlab.identify.forward import ForwardModel
     from battlab.io.plan import Plan
 
+    if full_charge not in FULL_CHARGE:
+        raise InputError(f"full charge {full_charge!r}: expected one of {', '.join(FULL_CHARGE)}")
     cell = cell if isinstance(cell, Cell) else Cell.load(cell)
     check_ambient_keys(data, ambient)
     plan_obj = Plan.load(plan) if plan is not None else None
     loaded, warned = load_all(data, fix_sign=fix_sign)
     ocv = [d for d in loaded if is_ocv_test(d, float(cell["Q_nom"]))]
     dyn = [d for d in loaded if d not in ocv]
+    if full_charge == "ocv-start" and not ocv:
+        raise InputError("--full-charge ocv-start needs an OCV test (|I| <= C/10 for at least 5 h) among the data")
     summary: dict[str, Any] = {"parameters": {}, "rmse_mV": {}, "converged": True}
     extra: dict[str, Any] = {}
     report = FitReport(cell, summary, extra, warnings=warned)
@@ -259,13 +301,19 @@ def fit(
     if ocv:
         d = ocv[0]
         eq = fit_equilibrium(
-            ocv_curve(d.t, d.current, d.voltage, source=d.source),
+            ocv_curve(d.t, d.current, d.voltage, source=d.source, branch=ocv_branch),
             cell,
             ocp_terms=ocp_terms,
             rated_capacity=rated_capacity,
         )
         cell = eq.cell
         rep = eq.report()
+        if full_charge == "ocv-start":
+            cell = full_charge_at_ocv_start(eq)
+            n0, n1, p0, p1 = cell.stoichiometry_window()
+            rep["window"] = {"sto_n_0": n0, "sto_n_100": n1, "sto_p_0": p0, "sto_p_100": p1}
+            rep["capacity_Ah"] = cell.capacity()
+        rep["full_charge"] = full_charge
         summary["equilibrium"] = rep
         summary["rmse_mV"][d.name] = eq.rmse_mV
         summary["converged"] = eq.converged
@@ -285,6 +333,13 @@ def fit(
         ]
         exps = unique_names(exps)
         fm = ForwardModel(cell, v_margin=0.15)
+        by_ambient: dict[float, list[Any]] = {}
+        if arrhenius:
+            from battlab.identify.arrhenius import split_by_ambient
+
+            exps, by_ambient = split_by_ambient(exps, float(cell["T_ref"]))
+            if not exps:
+                raise InputError(f"--arrhenius needs data within 5 K of the cell's T_ref {float(cell['T_ref']):g} K")
         logged = runlog.logged_groups(dyn) if plan is None and params is None else None
         groups = [(g.parameters, set(g.selected)) for g in logged] if logged is not None else None
         plan_stages = stages(params, plan, exps, groups, cell)
@@ -309,16 +364,31 @@ def fit(
             if on_equilibrium is not None:
                 on_equilibrium(report.equilibrium_data, report.equilibrium)
         try:
-            fit_stages(
-                cell,
-                plan_stages,
-                options=F.Options(max_nfev=max_iter),
-                forward=fm,
-                progress=stage_done,
-                hold_radii=hold_radii,
-            )
+            if plan_stages:
+                fit_stages(
+                    cell,
+                    plan_stages,
+                    options=F.Options(max_nfev=max_iter),
+                    forward=fm,
+                    progress=stage_done,
+                    hold_radii=hold_radii,
+                )
         except F.StageError as exc:
             raise StageFailed(exc.stage, exc.total, exc.cause, report, written, kept) from exc.cause
+        if arrhenius:
+            from battlab.identify.arrhenius import fit_arrhenius
+
+            names = [n for r in report.results for n in r.names] if report.results else []
+            arr = fit_arrhenius(report.cell, by_ambient, names, forward=fm, options=F.Options(max_nfev=max_iter))
+            report.cell = arr.cell
+            report.summary["arrhenius"] = arr.report()
+            report.extra["arrhenius"] = {"E_J_per_mol": arr.energies, "clipped": arr.clipped}
+            for k, v in arr.energies.items():
+                report.summary["parameters"][k] = {"value": v, "ci95": [None, None], "at_bound": k in arr.clipped}
+            if output is not None:
+                written = report.write(output)
+            if on_values is not None:
+                on_values(arr)
     else:
         report.cell = cell
     if not report.results:  # no stage: the equilibrium fit (or the start cell) alone
@@ -328,6 +398,12 @@ def fit(
             report.write(output)
         if report.equilibrium is not None and on_equilibrium is not None:
             on_equilibrium(report.equilibrium_data, report.equilibrium)
+    if value_stages:
+        _fit_value_stages(
+            report, dyn, value_stages, dt=dt, soc0=soc0, ambient=ambient, max_iter=max_iter, on_values=on_values
+        )
+        if output is not None:
+            report.write(output)
     return report
 
 
@@ -369,6 +445,69 @@ def fit_stages(
         results.append(res)
         current = res.cell
     return results
+
+
+def traces_of(dyn: Sequence[Any], cell: Cell, *, dt: float, soc0: float | None, ambient: Ambient) -> list[Any]:
+    """The dynamic data as value-fit traces: the fit's experiments with the logged surface temperature [K] at
+    their samples (NaN where not logged)."""
+    from battlab.identify.experiments import experiments_from_data, segments
+    from battlab.identify.values import Trace
+    from battlab.io.data import SURFACE
+
+    out = []
+    for d in dyn:
+        exps = experiments_from_data(d, cell, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
+        segs = segments(d)
+        surf = d.temperature_K(SURFACE)
+        for e, sl in zip(exps, segs if len(segs) == len(exps) else [None] * len(exps), strict=True):
+            if surf is None or sl is None:
+                temp = np.full(e.voltage.size, np.nan)
+            else:
+                temp = np.interp(d.t[sl.start] + e.profile.t, d.t[sl], surf[sl])
+            out.append(Trace(e.name, e.profile, e.soc0, e.ambient, e.T0, e.voltage, temp))
+    return out
+
+
+def parse_value_stage(text: str) -> tuple[str, str]:
+    """``[TARGET:]NAMES`` (TARGET voltage, the default, or temperature) as (target, names)."""
+    from battlab.identify.values import TARGETS
+
+    target, _, names = text.rpartition(":")
+    target = target.strip() or "voltage"
+    if target not in TARGETS:
+        raise InputError(f"--fit-values {text!r}: target {target!r} is not one of {', '.join(TARGETS)}")
+    return target, names
+
+
+def _fit_value_stages(
+    report: FitReport,
+    dyn: Sequence[Any],
+    value_stages: Sequence[tuple[str, str]],
+    *,
+    dt: float,
+    soc0: float | None,
+    ambient: Ambient,
+    max_iter: int,
+    on_values: Callable[[Any], None] | None,
+) -> None:
+    """Run the value fits on ``report.cell`` in order (each with about ``max_iter`` evaluations, an evaluation a
+    simulation of every trace); the report's cell, summary and BPX metadata follow."""
+    from battlab.identify.values import fit_values, parse_names
+
+    if not dyn:
+        raise InputError("--fit-values needs dynamic data (tests other than the OCV test)")
+    stages_ = [(target, parse_names(names, report.cell)) for target, names in value_stages]
+    traces = traces_of(dyn, report.cell, dt=dt, soc0=soc0, ambient=ambient)
+    done = report.summary.setdefault("value_fits", [])
+    for target, names in stages_:
+        vf = fit_values(report.cell, traces, names, target=target, max_nfev=max(1, max_iter // (len(names) + 1)))
+        report.cell = vf.cell
+        done.append(vf.report())
+        for k, v in vf.values.items():
+            report.summary["parameters"][k] = {"value": v, "ci95": [None, None], "at_bound": False}
+        report.extra["value_fits"] = list(done)
+        if on_values is not None:
+            on_values(vf)
 
 
 def _summarise_equilibrium_only(summary: dict[str, Any], extra: dict[str, Any], total: int) -> None:

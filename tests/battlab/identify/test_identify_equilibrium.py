@@ -68,3 +68,22 @@ def test_panasonic_c20(shared_data) -> None:
         assert e.eps_s_n + e.cell["eps_e_n"] < 1 and e.eps_s_p + e.cell["eps_e_p"] < 1
     assert float(eq.cell.ocv(0.0)) == pytest.approx(2.5, abs=1e-6)
     assert float(eq.cell.ocv(1.0)) == pytest.approx(4.2, abs=1e-6)
+
+
+def test_one_branch_of_a_full_cycle_is_that_branch_shifted_by_its_rest_step(c20_cycle) -> None:
+    """branch="discharge" on a discharge-rest-charge cycle: the discharge alone, as if the charge were not logged
+    (shifted up by its rest-step overpotential), not the mean of both; "charge" the same for the charge."""
+    t, i, v = c20_cycle
+    both = ocv_curve(t, i, v)
+    dis = ocv_curve(t, i, v, branch="discharge")
+    chg = ocv_curve(t, i, v, branch="charge")
+    assert "single branch" in dis.method and "discharge only" in dis.method and "charge only" in chg.method
+    k = int(np.argmax(i > 0))
+    alone = ocv_curve(t[:k], i[:k], v[:k])
+    q = np.linspace(0.2, 2.4, 12)
+    assert np.interp(q, dis.q, dis.voltage) == pytest.approx(np.interp(q, alone.q, alone.voltage), abs=1e-3)
+    assert np.max(np.abs(np.interp(q, dis.q, dis.voltage) - np.interp(q, both.q, both.voltage))) > 5e-3
+    with pytest.raises(InputError, match="OCV branch 'rest'"):
+        ocv_curve(t, i, v, branch="rest")
+    with pytest.raises(InputError, match="no constant-current charge branch"):
+        ocv_curve(t[:k], i[:k], v[:k], branch="charge")

@@ -146,3 +146,33 @@ def test_an_electrodes_four_orbit_parameters_are_fitted_as_its_invariants(tmp_pa
         assert inv["ci95"][0] <= inv["value"] <= inv["ci95"][1]
     assert s["held"] == {"R_s_n": pytest.approx(Cell.load("nca18650")["R_s_n"])}
     assert all(s["parameters"][n]["set_identified"] for n in names.split(","))
+
+
+def test_full_charge_at_ocv_start_puts_soc_1_where_the_ocv_test_starts() -> None:
+    """An OCV test that starts below V_max (the lab's full charge relaxed to its rest voltage): with "ocv-start"
+    SOC 1 is that start state (its OCV and the charge to V_min match the data), with "v-max" it is not."""
+    import numpy as np
+
+    from battlab.identify.equilibrium import OcvCurve, fit_equilibrium
+
+    cell = battlab.Cell.load("nca18650")
+    cap = cell.capacity()
+    q = np.linspace(0.0, 0.95 * cap, 200)  # from SOC 0.95 down to SOC 0
+    curve = OcvCurve(q, np.asarray(cell.ocv(0.95 - q / cap)), "synthetic", 0.0, "start95")
+    eq = fit_equilibrium(curve, cell)
+    assert float(eq.cell.ocv(1.0)) == pytest.approx(4.2, abs=1e-6)  # the paper's window: SOC 1 at V_max
+    full = workflow.full_charge_at_ocv_start(eq)
+    assert float(full.ocv(1.0)) == pytest.approx(float(cell.ocv(0.95)), abs=2e-3)
+    assert float(full.ocv(0.0)) == pytest.approx(float(eq.cell.ocv(0.0)), abs=1e-9)
+    assert full.capacity() == pytest.approx(0.95 * cap, rel=5e-3)
+    assert full.stoichiometry(1.0) == pytest.approx(cell.stoichiometry(0.95), abs=2e-3)
+
+
+def test_full_charge_ocv_start_without_an_ocv_test_is_one_clear_error(tmp_path: Path, virtual_csv) -> None:
+    from protocols.errors import InputError
+
+    data = virtual_csv(tmp_path, 19, 1)
+    with pytest.raises(InputError, match="--full-charge ocv-start needs an OCV test"):
+        workflow.fit([data], "nca18650", params="R_s_n", full_charge="ocv-start", max_iter=1)
+    with pytest.raises(InputError, match="full charge 'soc1'"):
+        workflow.fit([data], "nca18650", params="R_s_n", full_charge="soc1", max_iter=1)

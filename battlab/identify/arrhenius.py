@@ -1,0 +1,116 @@
+"""Activation energies (B5) from data at several ambient temperatures, through per-temperature refits.
+
+The model scales D_s±, k±, D_e and κ with temperature as ψ(T) = ψ_ref exp[(E_ψ/R)(1/T_ref − 1/T)]. Fitted at the
+reference temperature (the data nearest T_ref), a parameter refitted on the data of another ambient T (the
+others held) gives the value ψ_T that, with the cell's present E_ψ, matches those data; the activation energy that
+carries ψ_ref to it is E_ψ + R ln(ψ_T/ψ_ref)/(1/T_ref − 1/T). With several temperatures, the change is the
+least-squares slope of ln(ψ_T/ψ_ref) against (1/T_ref − 1/T) through the origin (the reference point). Each refit
+uses the exact sensitivities of the 18, so this costs one LM fit per temperature.
+
+The fitted cell keeps the reference values and gets the new activation energies (clipped to
+:data:`E_RANGE`). Whatever else differs between the tests at those temperatures (e.g. a cell that aged between
+them) is attributed to the temperature as well: the report gives the per-temperature values to judge that.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from battlab.cell import R_GAS, Cell
+from protocols.errors import InputError
+
+#: dynamic parameter → its activation energy in the cell
+ACTIVATION: dict[str, str] = {
+    "D_s_n": "E_D_s_n",
+    "D_s_p": "E_D_s_p",
+    "k_n": "E_k_n",
+    "k_p": "E_k_p",
+    "D_e_scale": "E_D_e",
+    "kappa_scale": "E_kappa",
+}
+#: [J/mol] the range an activation energy is kept in
+E_RANGE = (0.0, 150e3)
+#: [K] data whose ambient is this close to T_ref are reference data; others are grouped to the nearest kelvin
+REF_TOL = 5.0
+
+
+@dataclass
+class ArrheniusFit:
+    """Per-temperature values (ambient K → name → value), the activation energies before and after [J/mol], the
+    cell with the new ones, and the refits' RMSE [mV] per experiment before and after."""
+
+    cell: Cell
+    names: tuple[str, ...]
+    values: dict[float, dict[str, float]]
+    start: dict[str, float]
+    energies: dict[str, float]
+    rmse_before_mV: dict[str, float] = field(default_factory=dict)
+    rmse_after_mV: dict[str, float] = field(default_factory=dict)
+    clipped: list[str] = field(default_factory=list)
+
+    def report(self) -> dict[str, object]:
+        return {
+            "names": list(self.names),
+            "values_by_ambient_K": {f"{t:.2f}": v for t, v in self.values.items()},
+            "E_start_J_per_mol": self.start,
+            "E_J_per_mol": self.energies,
+            "clipped": self.clipped,
+            "rmse_before_mV": self.rmse_before_mV,
+            "rmse_after_mV": self.rmse_after_mV,
+        }
+
+
+def split_by_ambient(experiments: Sequence, t_ref: float) -> tuple[list, dict[float, list]]:
+    """(reference experiments within :data:`REF_TOL` of ``t_ref``, {ambient rounded to 0.1 K: experiments})."""
+    ref, other = [], {}
+    for e in experiments:
+        if abs(e.ambient - t_ref) <= REF_TOL:
+            ref.append(e)
+        else:
+            other.setdefault(round(float(e.ambient), 1), []).append(e)
+    return ref, other
+
+
+def activated(names: Sequence[str]) -> tuple[str, ...]:
+    """The names among ``names`` that have an activation energy."""
+    return tuple(n for n in names if n in ACTIVATION)
+
+
+def fit_arrhenius(
+    cell: Cell, groups: dict[float, list], names: Sequence[str], *, forward: object, options: object
+) -> ArrheniusFit:
+    """Refit ``names`` (those with an activation energy) of the reference-fitted ``cell`` on each ambient's
+    experiments and set the activation energies from the slopes (see the module docstring)."""
+    from battlab.identify import fit as F
+
+    names = activated(names)
+    if not names:
+        raise InputError(
+            f"--arrhenius: none of the fitted parameters has an activation energy ({', '.join(ACTIVATION)})"
+        )
+    if not groups:
+        raise InputError("--arrhenius needs data at an ambient temperature other than T_ref (more than 5 K away)")
+    t_ref = float(cell["T_ref"])
+    values: dict[float, dict[str, float]] = {}
+    before: dict[str, float] = {}
+    after: dict[str, float] = {}
+    for amb, exps in sorted(groups.items()):
+        res = F.fit(cell, exps, names, forward=forward, options=options)
+        values[amb] = {n: float(res.cell[n]) for n in names}
+        before.update(res.rmse_before_mV)
+        after.update(res.rmse_mV)
+    x = np.array([1.0 / t_ref - 1.0 / amb for amb in values])
+    start, energies, clipped = {}, {}, []
+    for n in names:
+        key = ACTIVATION[n]
+        y = np.array([np.log(values[amb][n] / float(cell[n])) for amb in values])
+        e_old = float(cell[key])
+        e_new = e_old + R_GAS * float(np.dot(x, y) / np.dot(x, x))
+        if not E_RANGE[0] <= e_new <= E_RANGE[1]:
+            clipped.append(key)
+            e_new = float(np.clip(e_new, *E_RANGE))
+        start[key], energies[key] = e_old, e_new
+    return ArrheniusFit(cell.with_values(**energies), names, values, start, energies, before, after, clipped)
