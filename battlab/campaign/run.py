@@ -50,8 +50,8 @@ def run_campaign(
     subscribers: Sequence[Subscriber] = (),
 ) -> dict[str, Any]:
     """Run (or resume) the campaign in ``directory``; returns the summary written to ``summary.json``."""
-    directory = Path(directory)
-    camp = Campaign(config, tester, directory.resolve())
+    directory = Path(directory).resolve()  # the stages name their files relative to it (a relative -o works too)
+    camp = Campaign(config, tester, directory)
     todo = stages(camp)
     current: list[str] = [""]
 

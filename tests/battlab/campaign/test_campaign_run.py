@@ -28,7 +28,8 @@ def test_a_failed_stage_is_one_line_and_a_rerun_resumes_after_the_finished_ones(
     once; the rerun keeps the capacity check's record and runs (and logs) nothing again before the library."""
     cfg = tmp_path / "campaign.toml"
     cfg.write_text('[stages]\nskip = ["ocv"]\n')
-    out = tmp_path / "camp"
+    monkeypatch.chdir(tmp_path)  # a relative campaign directory, as the README's `-o campaign`
+    out = Path("camp")
     real = pipeline._FUNCS["library"]
 
     def broken(camp: Any) -> Any:
