@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -373,20 +373,37 @@ def _restore(dq: float, camp: Campaign) -> Any:
 
 def design(camp: Campaign) -> Callable[[StageContext], StageOutput]:
     def run(ctx: StageContext) -> StageOutput:
-        from battlab.campaign.design import design_with_noise
+        from battlab.design.workflow import design as design_plan
         from battlab.noise import NoiseModel
 
         grp = _read(ctx.path("groups", "groups"))["groups"]
         model = NoiseModel(**_read(ctx.path("noise", "model"))["model"])
         out = ctx.directory / "plan" / "plan.toml"
         c = camp.config.design
-        summary = design_with_noise(
-            ctx.path("sweep", "store"), out, grp, model, criterion=c.criterion, M=c.profiles_per_group
+        rep = design_plan(
+            ctx.path("sweep", "store"), out, criterion=c.criterion, M=c.profiles_per_group, noise=model, groups=grp
         )
-        files = {"plan": "plan/plan.toml", "summary": "plan/plan.summary.json", "figure": summary.pop("figure")}
-        return StageOutput(files, summary)
+        summary = json.loads(Path(rep.files.summary).read_text())
+        selected = [pid for d in rep.designs for pid in d.selected]
+        out_summary = {
+            "criterion": summary["criterion"],
+            "groups": [
+                {"parameters": g["parameters"], "selected": g["selected"], "logdet": g.get("logdet")}
+                for g in summary["groups"]
+            ],
+            "solve_seconds": rep.solve_seconds,
+            "n_candidates": rep.n_candidates,
+            "selected_profiles": {str(pid): _profile_meta(rep.meta[pid]) for pid in selected},
+        }
+        figure = str(Path(rep.figure).resolve().relative_to(ctx.directory.resolve()))
+        files = {"plan": "plan/plan.toml", "summary": "plan/plan.summary.json", "figure": figure}
+        return StageOutput(files, out_summary)
 
     return run
+
+
+def _profile_meta(m: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: m[k] for k in ("kind", "soc0", "duration") if k in m} | {"params": m.get("params")}
 
 
 def experiments(camp: Campaign) -> Callable[[StageContext], StageOutput]:

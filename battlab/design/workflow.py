@@ -286,10 +286,13 @@ def design(
     solver: str | None = None,
     singular: str = "project",
     unweighted: bool = False,
+    noise: Any = None,
+    groups: Sequence[Sequence[str]] | None = None,
 ) -> DesignReport:
     """Select ``M`` library profiles per parameter group (convex relaxation, rounding, checks; eqs. 26–35) and
     write the plan TOML (whole experiment), one TOML per group, ``<plan>.summary.json`` and a figure of the
-    weights."""
+    weights. ``noise`` (a :class:`battlab.noise.NoiseModel`, eqs. 36–40): the model that weights the information
+    (default: the paper's); ``groups``: the parameter groups themselves (instead of ``groups_spec``)."""
     from battlab.design import figures as figs
     from battlab.design import groups as gd
     from battlab.design import identifiability, information
@@ -304,12 +307,15 @@ def design(
     store, note = open_store(store_path)
     with store:
         t0 = time.perf_counter()
-        info = information.load(store, include_flagged=include_flagged)
+        info = information.load(store, noise, include_flagged=include_flagged)
         if unweighted:
             info = information.Information(info.ids, info.names, info.R, np.ones(len(info)), info.meta, info.excluded)
-        conv = information.conventional(store, None if not unweighted else NoiseModel(floor=1.0))
-        ranking = identifiability.rank(info.W, info.names, info.ids)
-        grp, source = load_groups(groups_spec, ranking, k, "mean")
+        conv = information.conventional(store, noise if not unweighted else NoiseModel(floor=1.0))
+        if groups is not None:
+            grp, source = [list(g) for g in groups], "given"
+        else:
+            ranking = identifiability.rank(info.W, info.names, info.ids)
+            grp, source = load_groups(groups_spec, ranking, k, "mean")
         settings = gd.Settings(
             M=M,
             criterion=Criterion.of(criterion),

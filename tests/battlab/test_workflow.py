@@ -49,6 +49,20 @@ def test_design_returns_the_selection_it_writes(store: Path, tmp_path: Path) -> 
     assert rep.figure.is_file() and rep.n_candidates >= 1 and rep.solve_seconds > 0
 
 
+def test_design_takes_given_groups_and_a_noise_model(store: Path, tmp_path: Path) -> None:
+    """A campaign designs with the groups it chose and the noise model it fitted: a 1 V noise floor weights every
+    profile's information down by ~1e6 (q from mV to 1 V), so the groups' log-determinants fall."""
+    from battlab.noise import NoiseModel
+
+    groups = [["R_s_n", "D_s_n"], ["k_p", "R_s_p"]]
+    paper = workflow.design(store, tmp_path / "a" / "plan.toml", M=2, groups=groups)
+    noisy = workflow.design(store, tmp_path / "b" / "plan.toml", M=2, groups=groups, noise=NoiseModel(floor=1.0))
+    assert paper.source == noisy.source == "given"
+    assert [list(d.parameters) for d in paper.designs] == [groups[0], groups[0] + groups[1]]
+    for a, b in zip(paper.designs, noisy.designs, strict=True):
+        assert b.logdet < a.logdet - 5.0
+
+
 def test_fit_and_validate_return_what_they_write(tmp_path: Path, virtual_csv) -> None:
     a, b = virtual_csv(tmp_path, 19, 1), virtual_csv(tmp_path, 37, 2)
     stages = []
