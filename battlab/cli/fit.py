@@ -117,7 +117,7 @@ def fit(
     import json
     import sys
 
-    from battlab.identify import workflow
+    from battlab.identify import values, workflow
     from battlab.io import paths
     from protocols.errors import InputError
 
@@ -177,7 +177,7 @@ def fit(
         )
 
     try:
-        values_ = [workflow.parse_value_stage(v) for v in value_stages]
+        values_ = [values.parse_value_stage(v) for v in value_stages]
         rep = workflow.fit(
             data,
             start,

@@ -35,8 +35,9 @@ import numpy as np
 
 from battlab import parameters
 from battlab.cell import Cell
+from battlab.identify.data_files import Ambient, ambient_of, check_ambient_keys, load_all
 from battlab.identify.fit import Experiment
-from battlab.identify.workflow import Ambient, ambient_of, check_ambient_keys, json_default, load_all
+from battlab.identify.workflow import json_default
 from protocols.errors import InputError
 from protocols.profile import Profile
 

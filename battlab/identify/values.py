@@ -17,8 +17,9 @@ one (about 25-30 s on a 2-core host): a few names and a few evaluations.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -173,3 +174,62 @@ def fit_values(
         seconds=time.perf_counter() - t0,
         message=str(sol.message),
     )
+
+
+def traces_of(dyn: Sequence[Any], cell: Cell, *, dt: float, soc0: float | None, ambient: Any) -> list[Any]:
+    """The dynamic data as value-fit traces: the fit's experiments with the logged surface temperature [K] at
+    their samples (NaN where not logged)."""
+    from battlab.identify.data_files import ambient_of
+    from battlab.identify.experiments import experiments_from_data, segments
+    from battlab.io.data import SURFACE
+
+    out = []
+    for d in dyn:
+        exps = experiments_from_data(d, cell, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
+        segs = segments(d)
+        surf = d.temperature_K(SURFACE)
+        for e, sl in zip(exps, segs if len(segs) == len(exps) else [None] * len(exps), strict=True):
+            if surf is None or sl is None:
+                temp = np.full(e.voltage.size, np.nan)
+            else:
+                temp = np.interp(d.t[sl.start] + e.profile.t, d.t[sl], surf[sl])
+            out.append(Trace(e.name, e.profile, e.soc0, e.ambient, e.T0, e.voltage, temp))
+    return out
+
+
+def parse_value_stage(text: str) -> tuple[str, str]:
+    """``[TARGET:]NAMES`` (TARGET voltage, the default, or temperature) as (target, names)."""
+    target, _, names = text.rpartition(":")
+    target = target.strip() or "voltage"
+    if target not in TARGETS:
+        raise InputError(f"--fit-values {text!r}: target {target!r} is not one of {', '.join(TARGETS)}")
+    return target, names
+
+
+def fit_value_stages(
+    report: Any,
+    dyn: Sequence[Any],
+    value_stages: Sequence[tuple[str, str]],
+    *,
+    dt: float,
+    soc0: float | None,
+    ambient: Any,
+    max_iter: int,
+    on_values: Callable[[Any], None] | None,
+) -> None:
+    """Run the value fits on ``report.cell`` in order (each with about ``max_iter`` evaluations, an evaluation a
+    simulation of every trace); the report's cell, summary and BPX metadata follow."""
+    if not dyn:
+        raise InputError("--fit-values needs dynamic data (tests other than the OCV test)")
+    stages_ = [(target, parse_names(names, report.cell)) for target, names in value_stages]
+    traces = traces_of(dyn, report.cell, dt=dt, soc0=soc0, ambient=ambient)
+    done = report.summary.setdefault("value_fits", [])
+    for target, names in stages_:
+        vf = fit_values(report.cell, traces, names, target=target, max_nfev=max(1, max_iter // (len(names) + 1)))
+        report.cell = vf.cell
+        done.append(vf.report())
+        for k, v in vf.values.items():
+            report.summary["parameters"][k] = {"value": v, "ci95": [None, None], "at_bound": False}
+        report.extra["value_fits"] = list(done)
+        if on_values is not None:
+            on_values(vf)

@@ -12,8 +12,7 @@ from __future__ import annotations
 import copy
 import json
 import os
-import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -21,50 +20,8 @@ from typing import Any
 import numpy as np
 
 from battlab.cell import Cell
+from battlab.identify.data_files import Ambient, ambient_of, check_ambient_keys, is_ocv_test, load_all
 from protocols.errors import InputError
-
-
-def is_ocv_test(data: Any, q_nom: float) -> bool:
-    """A slow test: |I| ≤ C/10 (5 % margin) for at least 5 h."""
-    dur = float(data.t[-1] - data.t[0])
-    return float(np.max(np.abs(data.current))) <= 0.1 * q_nom * 1.05 and dur >= 5 * 3600
-
-
-def load_all(paths: Sequence[str | Path], *, fix_sign: bool = False) -> tuple[list[Any], list[str]]:
-    """Logged data from files, and the warnings their readers raised (as text)."""
-    from battlab.io.data import load_data
-
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        loaded = [load_data(p, fix_sign=fix_sign) for p in paths]
-    return loaded, [str(w.message) for w in caught]
-
-
-#: ambient temperatures [K] for logged data that do not log it: one value for all files, or per file (keys: the
-#: path as given, its file name, or the data's name; "*" for all others)
-Ambient = Mapping[str, float] | float | None
-
-
-def ambient_of(data: Any, ambient: Ambient) -> float | None:
-    """The ambient [K] given for ``data`` (None: use what the data logged)."""
-    if ambient is None or isinstance(ambient, int | float):
-        return None if ambient is None else float(ambient)
-    source = str(data.source or "")
-    for key in (source, Path(source).name, data.name, "*"):
-        if key and key in ambient:
-            return float(ambient[key])
-    return None
-
-
-def check_ambient_keys(paths: Sequence[str | Path], ambient: Ambient) -> None:
-    """Every per-file ambient must name one of the data files (a typo must not silently fall back)."""
-    if not isinstance(ambient, Mapping):
-        return
-    names = {str(p) for p in paths} | {Path(p).name for p in paths} | {Path(p).stem for p in paths} | {"*"}
-    unknown = [k for k in ambient if k not in names]
-    if unknown:
-        raise InputError(f"--ambient {unknown[0]}=…: no data file of that name (files: {', '.join(map(str, paths))})")
-
 
 #: what SOC 1 of a fitted cell is: where its OCV reaches V_max (eq. 20), or the state at the start of the OCV test
 FULL_CHARGE = ("v-max", "ocv-start")
@@ -399,7 +356,9 @@ def fit(
         if report.equilibrium is not None and on_equilibrium is not None:
             on_equilibrium(report.equilibrium_data, report.equilibrium)
     if value_stages:
-        _fit_value_stages(
+        from battlab.identify.values import fit_value_stages
+
+        fit_value_stages(
             report, dyn, value_stages, dt=dt, soc0=soc0, ambient=ambient, max_iter=max_iter, on_values=on_values
         )
         if output is not None:
@@ -445,69 +404,6 @@ def fit_stages(
         results.append(res)
         current = res.cell
     return results
-
-
-def traces_of(dyn: Sequence[Any], cell: Cell, *, dt: float, soc0: float | None, ambient: Ambient) -> list[Any]:
-    """The dynamic data as value-fit traces: the fit's experiments with the logged surface temperature [K] at
-    their samples (NaN where not logged)."""
-    from battlab.identify.experiments import experiments_from_data, segments
-    from battlab.identify.values import Trace
-    from battlab.io.data import SURFACE
-
-    out = []
-    for d in dyn:
-        exps = experiments_from_data(d, cell, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
-        segs = segments(d)
-        surf = d.temperature_K(SURFACE)
-        for e, sl in zip(exps, segs if len(segs) == len(exps) else [None] * len(exps), strict=True):
-            if surf is None or sl is None:
-                temp = np.full(e.voltage.size, np.nan)
-            else:
-                temp = np.interp(d.t[sl.start] + e.profile.t, d.t[sl], surf[sl])
-            out.append(Trace(e.name, e.profile, e.soc0, e.ambient, e.T0, e.voltage, temp))
-    return out
-
-
-def parse_value_stage(text: str) -> tuple[str, str]:
-    """``[TARGET:]NAMES`` (TARGET voltage, the default, or temperature) as (target, names)."""
-    from battlab.identify.values import TARGETS
-
-    target, _, names = text.rpartition(":")
-    target = target.strip() or "voltage"
-    if target not in TARGETS:
-        raise InputError(f"--fit-values {text!r}: target {target!r} is not one of {', '.join(TARGETS)}")
-    return target, names
-
-
-def _fit_value_stages(
-    report: FitReport,
-    dyn: Sequence[Any],
-    value_stages: Sequence[tuple[str, str]],
-    *,
-    dt: float,
-    soc0: float | None,
-    ambient: Ambient,
-    max_iter: int,
-    on_values: Callable[[Any], None] | None,
-) -> None:
-    """Run the value fits on ``report.cell`` in order (each with about ``max_iter`` evaluations, an evaluation a
-    simulation of every trace); the report's cell, summary and BPX metadata follow."""
-    from battlab.identify.values import fit_values, parse_names
-
-    if not dyn:
-        raise InputError("--fit-values needs dynamic data (tests other than the OCV test)")
-    stages_ = [(target, parse_names(names, report.cell)) for target, names in value_stages]
-    traces = traces_of(dyn, report.cell, dt=dt, soc0=soc0, ambient=ambient)
-    done = report.summary.setdefault("value_fits", [])
-    for target, names in stages_:
-        vf = fit_values(report.cell, traces, names, target=target, max_nfev=max(1, max_iter // (len(names) + 1)))
-        report.cell = vf.cell
-        done.append(vf.report())
-        for k, v in vf.values.items():
-            report.summary["parameters"][k] = {"value": v, "ci95": [None, None], "at_bound": False}
-        report.extra["value_fits"] = list(done)
-        if on_values is not None:
-            on_values(vf)
 
 
 def _summarise_equilibrium_only(summary: dict[str, Any], extra: dict[str, Any], total: int) -> None:

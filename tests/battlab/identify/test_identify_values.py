@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 import battlab
-from battlab.identify import workflow
-from battlab.identify.values import Trace, fit_values, parse_names
+from battlab.identify.values import Trace, fit_values, parse_names, parse_value_stage
 from protocols.errors import InputError
 from protocols.profile import Profile
 
@@ -41,6 +40,6 @@ def test_bad_value_names_and_targets_are_one_clear_error() -> None:
     with pytest.raises(InputError, match="named twice"):
         parse_names("R_c,R_c", cell)
     with pytest.raises(InputError, match="target 'heat'"):
-        workflow.parse_value_stage("heat:R_c")
-    assert workflow.parse_value_stage("R_c,E_kappa") == ("voltage", "R_c,E_kappa")
-    assert workflow.parse_value_stage("temperature:C1+C2,h2a") == ("temperature", "C1+C2,h2a")
+        parse_value_stage("heat:R_c")
+    assert parse_value_stage("R_c,E_kappa") == ("voltage", "R_c,E_kappa")
+    assert parse_value_stage("temperature:C1+C2,h2a") == ("temperature", "C1+C2,h2a")
