@@ -269,6 +269,37 @@ class Tester:
     def virtual(self) -> bool:
         return self.cycler_url == "virtual" and self.chamber_url == "virtual"
 
+    def preflight(self, timeout_s: float = 5.0) -> None:
+        """Before anything runs on real instruments: the limits file loads, and both instruments answer their
+        identification query at their URLs; raises InputError naming which one and why (nothing to check for the
+        in-process virtual tester)."""
+        if self.virtual:
+            return
+        from battlab.lab.bench import RunSettings, dialect_name, resolve_limits
+        from drivers.factory import open_chamber, open_cycler
+        from drivers.scpi.dialects import dialect_by_name
+
+        settings = RunSettings(self.cycler_url, self.chamber_url, limits_path=self.limits_path)
+        limits = resolve_limits(settings)
+        dialect = dialect_by_name(dialect_name(settings, limits))
+        for role, url, opener in (
+            ("cycler", self.cycler_url, lambda u: open_cycler(u, dialect=dialect, timeout_s=timeout_s, retries=0)),
+            ("chamber", self.chamber_url, lambda u: open_chamber(u, timeout_s=timeout_s, retries=0)),
+        ):
+            try:
+                dev = opener(url)
+            except InputError:
+                raise
+            except Exception as exc:
+                why = " ".join(str(exc).split()) or type(exc).__name__
+                raise InputError(f"{role} unreachable: {why if url in why else f'{url}: {why}'}") from exc
+            try:
+                dev.identify()
+            except Exception as exc:
+                raise InputError(f"{role} {url}: no answer to its identification query ({exc})") from exc
+            finally:
+                dev.close()
+
     def describe(self) -> dict[str, Any]:
         if self.virtual:
             return {"kind": "virtual (in-process, lock-step)", "truth": self.truth, "seed": self.seed}

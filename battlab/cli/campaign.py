@@ -110,7 +110,6 @@ def campaign(
         raise InputError("give --tester virtual or --cycler/--chamber, not both")
     from battlab.io.paths import check_output_path
 
-    check_output_path(output, directory=True, create=True)
     cfg = C.load(config_path, STAGE_NAMES)
     if quick:
         cfg = C.quick(cfg)
@@ -124,6 +123,8 @@ def campaign(
         )  # type: ignore[union-attr]
     else:
         t = Tester(truth=cfg.campaign.truth, seed=cfg.campaign.seed)
+    t.preflight()  # the limits file and both instruments, before the campaign directory is touched
+    check_output_path(output, directory=True, create=True)
     display = StageDisplay(quiet=quiet)
     try:
         summary = run_campaign(cfg, t, output, [display])

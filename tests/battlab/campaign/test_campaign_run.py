@@ -84,6 +84,31 @@ def test_bad_arguments_are_one_line(tmp_path: Path) -> None:
     assert r.exit_code == 2 and "fit.max_evals: unknown key" in r.output
 
 
+def test_unreachable_instruments_are_one_line_before_the_directory_is_made(tmp_path: Path) -> None:
+    """A closed port (refused) and a port that accepts but never answers the identification query: both one line,
+    exit 2, and no campaign directory written."""
+    import socket
+
+    closed = socket.socket()
+    closed.bind(("127.0.0.1", 0))
+    port = closed.getsockname()[1]
+    closed.close()
+    out = tmp_path / "camp"
+    r = _invoke("--cycler", f"socket://127.0.0.1:{port}", "--chamber", "modbus-tcp://127.0.0.1:1", "-o", str(out))
+    assert r.exit_code == 2, r.output
+    assert f"cycler unreachable: socket://127.0.0.1:{port}" in r.output and "Traceback" not in r.output
+    assert not out.exists()
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen()
+        port = silent.getsockname()[1]
+        r = _invoke("--cycler", f"socket://127.0.0.1:{port}", "--chamber", "modbus-tcp://127.0.0.1:1", "-o", str(out))
+    assert r.exit_code == 2, r.output
+    assert f"socket://127.0.0.1:{port}" in r.output and "Traceback" not in r.output
+    assert len(r.output.strip().splitlines()) == 1
+    assert not out.exists()
+
+
 #: the smallest campaign that still runs every stage: three library profiles, one per group, one noise profile per
 #: direction, two evaluations per fit stage, one constant-current test each for the baseline and validation
 SMALL = """
