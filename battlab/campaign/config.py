@@ -119,7 +119,7 @@ def quick(config: CampaignConfig) -> CampaignConfig:
     """The reduced campaign: a small library, fewer profiles per group, noise profiles and repeats, a short fit
     (5 evaluations and 1 polish simulation per stage); the tester rests 300 s instead of 600 s after each
     measured profile, the conventional baseline is the C/3 and 2C discharges plus UDDS, and validation is the 1C
-    discharge plus US06 (:mod:`battlab.campaign.pipeline`)."""
+    discharge plus US06 (:mod:`battlab.campaign.assessment`)."""
     lib = config.library if config.library.ids else LibrarySection(QUICK_LIBRARY_IDS)
     return replace(
         config,

@@ -6,7 +6,10 @@ a rerun resumes), 2 a user error (bad config, URL, directory), 130 interrupted.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -127,11 +130,13 @@ def campaign(
     check_output_path(output, directory=True, create=True)
     display = StageDisplay(quiet=quiet)
     try:
-        summary = run_campaign(cfg, t, output, [display])
+        with _log_to(output / "campaign.log"):
+            summary = run_campaign(cfg, t, output, [display])
     except CampaignFailed as exc:
         display.close()
         click.echo(f"error: campaign stage {exc.stage} failed: {exc.reason}", err=True)
         click.echo(f"  finished stages are kept in {exc.directory}; rerun the same command to resume", err=True)
+        click.echo(f"  the instruments' and runner's messages are in {output / 'campaign.log'}", err=True)
         sys.exit(1)
     finally:
         display.close()
@@ -143,3 +148,22 @@ def campaign(
     if v:
         for test, row in v.items():
             click.echo("  " + test + ": " + ", ".join(f"{k} {x:.2f} mV" for k, x in row.items()))
+
+
+@contextlib.contextmanager
+def _log_to(path: Path) -> Iterator[None]:
+    """The instruments' and the runner's messages (an output turned off at a cut-off, a run aborted at a limit) go to
+    ``path`` (appended, created with the first message), not to the terminal: the stages' outcomes are in the
+    summary and the run-log health, and a failed stage is its one error line."""
+    handler = logging.FileHandler(path, mode="a", encoding="utf-8", delay=True)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger()
+    level = root.level
+    root.addHandler(handler)
+    root.setLevel(min(level or logging.WARNING, logging.INFO))
+    try:
+        yield
+    finally:
+        root.removeHandler(handler)
+        root.setLevel(level)
+        handler.close()

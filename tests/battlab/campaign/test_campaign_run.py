@@ -139,6 +139,9 @@ def test_a_reduced_campaign_end_to_end(tmp_path: Path) -> None:
     out = tmp_path / "camp"
     r = _invoke("--config", str(cfg), "--quick", "-o", str(out))
     assert r.exit_code == 0, r.output
+    # the terminal gets the result, not the instruments' messages (those go to campaign.log)
+    lines = r.output.strip().splitlines()
+    assert lines[0].startswith("campaign finished:") and all(x.startswith("  ") for x in lines[1:]), r.output
     s = json.loads((out / "summary.json").read_text())
     names = [x["name"] for x in s["stages"]]
     assert names == list(pipeline.STAGE_NAMES)

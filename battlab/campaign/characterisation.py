@@ -1,0 +1,182 @@
+"""The campaign's characterisation stages on the tester: the capacity check (before and after), the OCV test and
+the equilibrium fit from it, and the repeated trials that fit the noise model (eq. 36-39)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from battlab.campaign import data as D
+from battlab.campaign import plans as P
+from battlab.campaign.context import Campaign, health_file, plain, rel_path, write_json
+from battlab.campaign.stages import StageContext, StageOutput
+from battlab.cell import Cell
+
+#: how far [V] a noise profile simulated on the start cell must stay above V_min and below V_max (the truth may be
+#: more polarised than the start: 0.3-0.5 V more at the end of long discharges, tens of mV on charge)
+NOISE_MARGIN_V = (0.2, 0.1)
+#: the largest current [C] of a noise profile
+NOISE_MAX_C = 3.0
+
+
+def capacity(camp: Campaign, which: str) -> Callable[[StageContext], StageOutput]:
+    def run(ctx: StageContext) -> StageOutput:
+        n0 = len(camp.runs)
+        out = camp.run(P.capacity_check(camp.q_rated, camp.ambient), f"capacity_{which}")
+        ah = D.discharged_ah(out.log_path, P.CAPACITY_STEP)
+        rel_log = str(out.log_path.relative_to(ctx.directory))
+        health = health_file(camp, ctx, f"capacity_{which}", n0)
+        summary = {"capacity_Ah": ah, "rated_Ah": camp.q_rated, "c_rate": "C/3 after CCCV", "hours": out.hours}
+        return StageOutput({"log": rel_log, "health": health}, summary, out.hours)
+
+    return run
+
+
+def ocv(camp: Campaign) -> Callable[[StageContext], StageOutput]:
+    def run(ctx: StageContext) -> StageOutput:
+        n0 = len(camp.runs)
+        out = camp.run(P.ocv_test(camp.q_rated, camp.ambient), "ocv")
+        rel = str(out.log_path.relative_to(ctx.directory))
+        health = health_file(camp, ctx, "ocv", n0)
+        return StageOutput({"log": rel, "health": health}, {"hours": out.hours, "c_rate": "C/20, one cycle"}, out.hours)
+
+    return run
+
+
+def equilibrium(camp: Campaign) -> Callable[[StageContext], StageOutput]:
+    def run(ctx: StageContext) -> StageOutput:
+        from battlab.campaign.figures import ocv_fit
+        from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
+
+        d = D.load(ctx.path("ocv", "log"))
+        m = D.steps(d, P.OCV_FIRST_STEP)
+        eq = fit_equilibrium(ocv_curve(d.t[m], d.current[m], d.voltage[m], source="ocv"), camp.start)
+        out = ctx.directory / "equilibrium"
+        out.mkdir(parents=True, exist_ok=True)
+        eq.cell.renamed("equilibrium").to_bpx(out / "equilibrium.bpx.json", equilibrium=plain(eq.report()))
+        rep = plain(eq.report())
+        if camp.tester.virtual:
+            truth = Cell.load(camp.tester.truth)
+            rep["truth"] = {k: float(truth[k]) for k in ("eps_s_n", "eps_s_p", "n_Li")}
+            rep["truth"]["capacity_Ah"] = float(truth.capacity())
+        write_json(out / "summary.json", rep)
+        fig = ocv_fit(d.t[m], d.current[m], d.voltage[m], eq.cell, out / "ocv_fit.png")
+        files = {"cell": "equilibrium/equilibrium.bpx.json", "summary": "equilibrium/summary.json"}
+        files["figure"] = str(fig.relative_to(ctx.directory))
+        return StageOutput(files, rep)
+
+    return run
+
+
+def noise(camp: Campaign) -> Callable[[StageContext], StageOutput]:
+    def run(ctx: StageContext) -> StageOutput:
+        from battlab.campaign.figures import noise_model
+        from battlab.noise import NoiseModel, direction, intensity, repeat_noise
+        from protocols.library import Library
+
+        n0 = len(camp.runs)
+        lib = Library.load(ctx.path("library", "library"))
+        cap = ctx.inputs["equilibrium"].summary["capacity_Ah"]  # SOC is defined on the equilibrium capacity
+        picks = noise_profiles(
+            lib,
+            camp.config.noise.profiles_per_direction,
+            Cell.load(str(ctx.path("equilibrium", "cell"))),
+            camp.config.noise.max_duration_s,
+        )
+        runs_, rows, hours, failed = [], [], 0.0, {}
+        reps = camp.config.noise.repeats
+        for n, prof in enumerate(picks):
+            prep = P.prepare(float(prof.soc0), camp.q_rated, cap, camp.ambient)
+            hours += camp.run(prep, f"noise/{prof.id}_prep").hours
+            logs = []
+            for trial in range(1, reps + 1):
+                ctx.progress(n * reps + trial - 1, len(picks) * reps, f"profile {prof.id} trial {trial}")
+                plan = P.measurement(prof, camp.q_rated, camp.ambient, rest_after_s=0.0)
+                out = camp.run(plan, f"noise/{prof.id}_trial{trial}", must_complete=False)
+                hours += out.hours
+                if out.status != "completed":  # the profile is left out of the regression; the others go on
+                    failed[str(prof.id)] = out.reason or out.status
+                    break
+                logs.append(out.log_path)
+                dq = D.net_ah(out.log_path)
+                if trial < reps and abs(dq) > 1e-3:
+                    hours += camp.run(_restore(dq, camp), f"noise/{prof.id}_restore{trial}").hours
+            if str(prof.id) in failed:
+                continue
+            v = D.trial_voltages(logs)
+            runs_.append((prof, v))
+            q = repeat_noise(v)
+            rows.append({"id": prof.id, "direction": direction(prof).value, "intensity": intensity(prof), "q_V": q})
+        model = NoiseModel.fit(runs_)
+        out = ctx.directory / "noise"
+        summary = {"model": model.__dict__, "runs": rows, "failed": failed, "repeats": reps, "hours": hours}
+        write_json(out / "noise.json", summary)
+        fig = noise_model(rows, model, out / "noise_model.png")
+        files = {
+            "model": "noise/noise.json",
+            "figure": rel_path(ctx, fig),
+            "health": health_file(camp, ctx, "noise", n0),
+        }
+        return StageOutput(files, summary, hours)
+
+    return run
+
+
+def noise_profiles(lib: Any, per_direction: int, cell: Cell | None = None, max_s: float = 3600.0) -> list[Any]:
+    """Pulse profiles that only charge and that only discharge, ``per_direction`` of each, spread over the range of
+    intensities (eq. 38 fits one line per direction), from the library's outer start SOCs (discharges from 0.8,
+    charges from 0.2: their 1 Ah, 37 % of SOC, stays away from the ends, where the truth may be far more polarised
+    than the start cell). With ``cell``: at most :data:`NOISE_MAX_C`, and a profile whose simulation on ``cell``
+    comes within :data:`NOISE_MARGIN_V` of a voltage limit is passed over for the next gentler one (a repeated
+    trial must not end at a safety limit). Profiles longer than ``max_s`` [s] are left out."""
+    from battlab.noise import direction, intensity
+
+    out = []
+    cell_c = float(cell["Q_nom"]) if cell is not None else 0.0
+    for d in ("discharge", "charge"):
+        fits = (lambda p: p.soc0 >= 0.8) if d == "discharge" else (lambda p: p.soc0 <= 0.2)
+        gentle = (
+            (lambda p: float(np.abs(p.current).max()) <= NOISE_MAX_C * cell_c) if cell is not None else (lambda p: True)
+        )
+        cands = [
+            p
+            for p in lib
+            if p.kind == "pulse" and direction(p).value == d and fits(p) and gentle(p) and p.duration <= max_s
+        ]
+        cands.sort(key=intensity)
+        if not cands or per_direction < 1:
+            continue
+        targets = np.unique(np.linspace(0, len(cands) - 1, per_direction).round().astype(int))
+        used: set[int] = set()
+        for k in targets:
+            order = [j for j in range(k, -1, -1) if j not in used]  # the target, else the next gentler one
+            for j in order:
+                if cell is None or _in_window(cell, cands[j]):
+                    used.add(j)
+                    out.append(cands[j])
+                    break
+    return out
+
+
+def _in_window(cell: Cell, prof: Any) -> bool:
+    from battlab.simulation import simulate
+
+    res = simulate(cell, prof, soc0=float(prof.soc0))
+    v = res.voltage
+    lo, hi = float(cell["V_min"]) + NOISE_MARGIN_V[0], float(cell["V_max"]) - NOISE_MARGIN_V[1]
+    return res.ended_by is None and v.min() >= lo and v.max() <= hi
+
+
+def _restore(dq: float, camp: Campaign) -> Any:
+    """Put back the net charge ``dq`` [Ah] a trial passed (C/2), then rest."""
+    from protocols.protocol import ConstantCurrent, Rest, after, capacity_reached, voltage_above, voltage_below
+
+    i = -np.sign(dq) * 0.5 * camp.q_rated
+    limit = voltage_above(P.V_MAX) if i > 0 else voltage_below(P.V_MIN)
+    steps = [
+        ConstantCurrent(float(i), (capacity_reached(abs(dq)), limit), "restore the start SOC"),
+        Rest((after(1800.0),), "rest"),
+    ]
+    return P._plan("restore", steps, camp.q_rated, P.COARSE_S, camp.ambient)
