@@ -325,6 +325,7 @@ def _adaptive(
             what = f"solver: singular Jacobian at t = {t_now:.6g} s"
             return _failure(stepper, y, last, T_amb, th, limits, t_now, what), n_iter
         reanalysed = (k, t_now, code)
+        control.state[6] = 1.0  # the step starts from the state kept in the history (a right limit)
         if code == -5:
             u0 = np.array([0.0, 0.0, samples.current[m], T_amb])
             pivots = pivots.replace(zero=stepper.analyse_at(y, y[:nx], xp, u0, th))
