@@ -260,6 +260,10 @@ class NativeStepper:
         self._lock = threading.Lock()
 
     # --- LU analysis ---
+    def outputs(self, y: np.ndarray, current: float, T_amb: float, th: np.ndarray) -> np.ndarray:
+        """[V, T1, T2, sto_min, sto_max] at state ``y`` with ``current`` [A, + = discharge] and ``T_amb`` [K]."""
+        return np.asarray(self._f["bl_out"](y, np.array([0.0, 0.0, current, T_amb]), th)).ravel()
+
     def analyse_at(self, y: np.ndarray, xn: np.ndarray, xp: np.ndarray, u: np.ndarray, th: np.ndarray) -> Pivots:
         """A pivot program for the Jacobian at a state (when the one in use meets a vanishing pivot)."""
         vals = np.array(self._f["bl_jac"](y, xn, xp, u, th).nonzeros())

@@ -15,7 +15,8 @@ class AdaptiveControl:
     that ``bl_run`` replays)."""
 
     settings: np.ndarray  # rtol, atol, hmax [s], growth, dt_first [s]
-    state: np.ndarray = field(default_factory=lambda: np.zeros(6))  # t, next h, h1, h2, steps in segment, inside
+    #: t, next h, h1, h2, steps in segment, inside segment 0, called again after a pivot re-analysis
+    state: np.ndarray = field(default_factory=lambda: np.zeros(7))
     h: np.ndarray = field(default_factory=lambda: np.zeros(1024))
     w: np.ndarray = field(default_factory=lambda: np.zeros(1024))
     current: np.ndarray = field(default_factory=lambda: np.zeros(1024))

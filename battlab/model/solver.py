@@ -98,6 +98,21 @@ def _no_right_limit(
     return f"solver: no right-limit solution at t = {t:.6g} s"
 
 
+def _failure(
+    stepper, y: np.ndarray, current: float, T_amb: float, th: np.ndarray, limits: dict[str, float], t: float, what: str
+) -> str:
+    """Why a run ends whose next step failed (``what``: the solver's message) from the last converged state ``y``
+    at time ``t`` [s], reached with ``current`` [A, + = discharge]: when that state is already beyond a voltage
+    limit, the voltage passed it between samples (as it collapses towards the end of what the cell can carry, where
+    the solution folds and Newton fails), and a tester stops there: the limit, not a solver failure."""
+    o = stepper.outputs(y, current, T_amb, th)
+    lo, hi = limits["V_min"], limits["V_max"]
+    if o[0] < lo or o[0] > hi:
+        side = f"V < {lo:g}" if o[0] < lo else f"V > {hi:g}"
+        return f"{side} (passed between samples, at t = {t:.6g} s; the solution ends just after it)"
+    return what
+
+
 def run_native(
     stepper,
     t: np.ndarray,
@@ -196,7 +211,9 @@ def run_native(
             break
         hb = h[pos]
         if hb < 1e-6:
-            ended_by = f"solver: Newton did not converge at t = {float(t_end[pos] - hb):.6g} s"
+            t_fail = float(t_end[pos] - hb)
+            what = f"solver: Newton did not converge at t = {t_fail:.6g} s"
+            ended_by = _failure(stepper, y, cur[max(pos - 1, 0)], T_amb, th, limits, t_fail, what)
             break
         t_end = split_ends(t_end, h, pos)
         h, w, cur = split_step(h, w, cur, pos)
@@ -294,13 +311,21 @@ def _adaptive(
             return check_end(m, out[:, 0], out[:, 2], out[:, 3], out[:, 4], limits), n_iter
         if code == -4:
             return _no_right_limit(t_now, segments.current[k], samples.current[m], limits, out[m, 0]), n_iter
+        last = float(control.current[control.n - 1]) if control.n else float(segments.current[k])
         if code == -1:
-            return f"solver: Newton did not converge at t = {t_now:.6g} s", n_iter
+            what = f"solver: Newton did not converge at t = {t_now:.6g} s"
+            return _failure(stepper, y, last, T_amb, th, limits, t_now, what), n_iter
         if reanalysed == (k, t_now, code):  # still singular after a new pivot order
             if code == -5:
                 return _no_right_limit(t_now, segments.current[k], samples.current[m], limits), n_iter
-            return f"solver: singular Jacobian at t = {t_now:.6g} s", n_iter
+            h_next = float(control.state[1])
+            if h_next >= 4e-6:  # a smaller step from the same state, as after a Newton failure
+                control.state[1] = 0.25 * h_next
+                continue
+            what = f"solver: singular Jacobian at t = {t_now:.6g} s"
+            return _failure(stepper, y, last, T_amb, th, limits, t_now, what), n_iter
         reanalysed = (k, t_now, code)
+        control.state[6] = 1.0  # the step starts from the state kept in the history (a right limit)
         if code == -5:
             u0 = np.array([0.0, 0.0, samples.current[m], T_amb])
             pivots = pivots.replace(zero=stepper.analyse_at(y, y[:nx], xp, u0, th))

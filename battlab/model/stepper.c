@@ -486,7 +486,8 @@ int bl_run(const Problem *P, const Problem *P0, int nsteps, const double *h, con
  * steps, right limits at segment ends). Accepted steps are recorded in plan_h/w/I/t (capacity plan_cap, count
  * *plan_n) so that bl_run can replay them (for sensitivities at other theta, as finite differences need).
  * ctl (in/out, kept across calls): [0] t (time reached), [1] next h, [2] h1 (last step), [3] h2 (the one before),
- * [4] accepted steps in this segment, [5] 1 while inside segment 0 of this call; settings: adapt[5] = rtol, atol,
+ * [4] accepted steps in this segment, [5] 1 while inside segment 0 of this call, [6] 1 when called again after a
+ * pivot re-analysis (cleared at the first accepted step); settings: adapt[5] = rtol, atol,
  * hmax, growth, dt_first. yhist: 3n (starts of this step, the previous and the one before), Shist: 2 n ns.
  * Returns segments completed; *code as bl_run, plus -6 (the plan is full: call again) and -1 (Newton failed at a
  * step below 1e-6 s); the state is always that of the last accepted step. */
@@ -552,6 +553,10 @@ int bl_adapt(const Problem *P, const Problem *P0, int nseg, const double *seg_h,
       if (nseg_steps >= 1)
         for (int i = 0; i < n; ++i) ynew[i] = l0 * yA[i] + l1 * yB[i] + (l2 != 0.0 ? l2 * yC[i] : 0.0);
       else if (have_right) memcpy(ynew, y0, sizeof(double) * n);
+      /* resumed after a pivot re-analysis (ctl[6] = 1) at a restart: the start of this step kept in the history
+         (the right limit where one was taken; y0 is not kept across calls, and y is the left limit, at the old
+         current, from which Newton can fail at any step size after a large current change) */
+      else if (ctl[6] > 0.0 && *plan_n > 0) memcpy(ynew, yA, sizeof(double) * n);
       else memcpy(ynew, y, sizeof(double) * n);
       it = newton(P, ynew, xn, xp, u, th, lu, &have_lu, R, yt, Rt, jnz, c, tol, maxit, ntol);
       if (it == -2) { *code = -2; ret = k; goto done; }
@@ -579,6 +584,7 @@ int bl_adapt(const Problem *P, const Problem *P0, int nseg, const double *seg_h,
       }
       if (*plan_n >= plan_cap) { *code = -6; ret = k; goto done; }
       /* accepted */
+      ctl[6] = 0.0;
       double t_end = (h == remaining) ? t_e : t + h;
       int right = 0, mm = *m_io, m0 = *m_io;
       while (mm < nsamp && t_samp[mm] <= t_end + eps) ++mm;
