@@ -70,3 +70,19 @@ def test_a_bad_noise_file_is_one_line_naming_the_file_and_field(tmp_path: Path, 
     assert expected in str(err.value) and "\n" not in str(err.value)
     with pytest.raises(InputError, match="cannot read"):
         load(tmp_path / "missing.toml")
+
+
+def test_repeat_noise_is_the_white_noise_not_the_trials_different_start_states() -> None:
+    """Trials that start from slightly different states differ by smooth curves (an offset, a relaxation) far
+    larger than the noise; eq. 36's q is the noise's level all the same."""
+    from battlab.noise import repeat_noise
+
+    t = np.arange(900.0)
+    base = 3.7 - 0.1 * np.sin(t / 40.0)
+    rng = np.random.default_rng(3)
+    drift = [2e-3 * k * (1 + np.exp(-t / 300.0)) for k in (-1, 0, 1, 2)]
+    v = np.stack([base + d + 120e-6 * rng.standard_normal(t.size) for d in drift])
+    assert repeat_noise(v) == pytest.approx(120e-6, rel=0.05)
+    assert float(np.sqrt(np.mean(np.var(v, axis=0, ddof=1)))) > 10 * 120e-6  # eq. 36 on the trials as they are
+    with pytest.raises(InputError, match="n_trials"):
+        repeat_noise(v[:1])
