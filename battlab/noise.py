@@ -38,10 +38,15 @@ def intensity(profile: Profile) -> float:
     return float(np.sqrt(np.sum(profile.current[:-1] ** 2 * np.diff(profile.t))))
 
 
-def direction(profile: Profile) -> Direction:
-    """Charge-only, discharge-only or both (positive current = charge)."""
+#: [A] currents this small are rest when a profile's direction is taken: a logged rest reads the current sensor's
+#: noise (the virtual cycler's: 0.2 mA), of both signs
+REST_A = 0.01
+
+
+def direction(profile: Profile, rest: float = REST_A) -> Direction:
+    """Charge-only, discharge-only or both (positive current = charge; |I| ≤ ``rest`` [A] counts as rest)."""
     i = profile.current[:-1]
-    pos, neg = bool(np.any(i > 0)), bool(np.any(i < 0))
+    pos, neg = bool(np.any(i > rest)), bool(np.any(i < -rest))
     if pos and not neg:
         return Direction.CHARGE
     if neg and not pos:

@@ -86,3 +86,16 @@ def test_repeat_noise_is_the_white_noise_not_the_trials_different_start_states()
     assert float(np.sqrt(np.mean(np.var(v, axis=0, ddof=1)))) > 10 * 120e-6  # eq. 36 on the trials as they are
     with pytest.raises(InputError, match="n_trials"):
         repeat_noise(v[:1])
+
+
+def test_a_logged_pulse_train_keeps_its_direction_through_the_current_sensors_noise() -> None:
+    """The rests of a logged discharge pulse train read the current sensor's noise (both signs, below a mA): the
+    profile is still discharge-only, and its trials fit the discharge curve."""
+    from battlab.noise import Direction, direction
+
+    rng = np.random.default_rng(0)
+    i = np.where(np.arange(601) % 60 < 10, -5.4, 0.0) + 2e-4 * rng.standard_normal(601)
+    logged = Profile(np.arange(601.0), i)
+    assert direction(logged) is Direction.DISCHARGE
+    m = NoiseModel.fit([(logged, _trials(2e-4)), (_pulse(2.7), _trials(1e-4, seed=4))], floor=1e-5)
+    assert m.q_discharge(1.0) == pytest.approx(2e-4, rel=0.1) and m.q_charge(1.0) == pytest.approx(1e-4, rel=0.1)
