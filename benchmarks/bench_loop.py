@@ -80,6 +80,37 @@ def design(work: Path, ids: list[int], M: int, groups: str | None) -> Path:
     return plan
 
 
+def distinct_plan(plan: Path) -> Path:
+    """The design's plan with each distinct profile run once, in the first group that selected it (the fit is
+    cumulative: later groups fit on it too), beside it as ``plan.distinct.toml`` with the design's summary."""
+    import json
+    import shutil
+
+    import tomli_w
+
+    from battlab import Cell
+    from battlab.design.plan import grouped_protocol, ocv_table
+    from battlab.io.plan import Plan, sidecar_path
+    from protocols.protocol import ProfileStep
+
+    steps = [st for st in Plan.load(plan).protocol.steps if isinstance(st, ProfileStep)]
+    groups: dict[int, list[Any]] = {}
+    seen: set[str] = set()
+    for st in steps:
+        k = int(st.label.split("group ", 1)[1].split(":")[0])
+        if str(st.profile.id) not in seen:
+            seen.add(str(st.profile.id))
+            groups.setdefault(k, []).append(st.profile)
+    out = plan.with_name("plan.distinct.toml")
+    proto = grouped_protocol("distinct", sorted(groups.items()), "distinct", ocv_table(Cell.load("nca18650")))
+    out.write_text(tomli_w.dumps(proto.to_dict()))
+    shutil.copy(sidecar_path(plan), sidecar_path(out))
+    n = sum(len(v) for v in groups.values())
+    ids = json.dumps({k: [p.id for p in v] for k, v in groups.items()})
+    print(f"  distinct plan: {n} profile steps of {len(steps)} ({ids})")
+    return out
+
+
 def compare_reduced(store: Path, designs: Any, M: int) -> None:
     """Each group whose parameters hold an electrode's whole orbit, designed on the same candidates (no window
     screen) with ``singular="project"`` and in the identifiable coordinates (R_s left out)."""
@@ -360,6 +391,13 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=0, help="repeat run and fit for seeds 0..N-1 (coverage)")
     ap.add_argument("--noise-trials", type=int, default=3, help="repeated trials of the noise calibration (0: none)")
     ap.add_argument("--noise-profiles", type=int, default=1, help="noise profiles per direction")
+    ap.add_argument("--noise", default=None, help="a noise model file measured before (instead of the calibration)")
+    ap.add_argument(
+        "--distinct",
+        action="store_true",
+        help="run each distinct profile of the design once (a profile selected by "
+        "several groups runs in the first; the cumulative fit sees it in the later stages too)",
+    )
     ap.add_argument("--sequential", action="store_true", help="also the sequential design (see above)")
     ap.add_argument("--sequential-only", action="store_true", help="the sequential design alone")
     ap.add_argument("--workdir", default=None)
@@ -369,8 +407,8 @@ def main() -> None:
     os.environ.setdefault("BATTLAB_HOME", str(work / "home"))
     print(f"work directory {work}")
     seeds = list(range(a.seeds)) if a.seeds else [a.seed]
-    noise = None
-    if a.noise_trials:
+    noise = Path(a.noise) if a.noise else None
+    if a.noise_trials and noise is None:
         t0 = time.perf_counter()
         noise = noise_calibration(work, a.noise_trials, a.noise_profiles, a.speed)
         print(f"noise calibration: {time.perf_counter() - t0:.0f} s")
@@ -379,6 +417,8 @@ def main() -> None:
         print(f"mean |log10 error|: sequential {seq:.3f} (seed {seeds[-1]})")
         return
     plan = design(work, [int(x) for x in a.ids.split(",")], a.M, a.groups or None)
+    if a.distinct:
+        plan = distinct_plan(plan)
     tally: dict[str, list[tuple[bool, bool | None]]] = {}
     per_run: list[str] = []
     fit_s: list[float] = []
