@@ -61,7 +61,7 @@ def library(work: Path) -> Path:
     return lib_path
 
 
-def design(work: Path, ids: list[int], M: int, groups: str | None) -> Path:
+def design(work: Path, ids: list[int], M: int, groups: str | None, rest_before_s: float = 1800.0) -> Path:
     from battlab.design import workflow as dw
 
     lib_path = library(work)
@@ -71,7 +71,7 @@ def design(work: Path, ids: list[int], M: int, groups: str | None) -> Path:
     t_sweep = time.perf_counter() - t0
     plan = work / "plan.toml"
     t0 = time.perf_counter()
-    rep = dw.design(store, plan, M=M, groups_spec=groups, singular="project")
+    rep = dw.design(store, plan, M=M, groups_spec=groups, singular="project", rest_before_s=rest_before_s)
     print(f"design: sweep of {len(ids)} profiles {t_sweep:.0f} s, design {time.perf_counter() - t0:.1f} s")
     for d in rep.designs:
         nulls = "; ".join(n.describe() for n in d.unidentifiable) or "none"
@@ -80,7 +80,7 @@ def design(work: Path, ids: list[int], M: int, groups: str | None) -> Path:
     return plan
 
 
-def distinct_plan(plan: Path) -> Path:
+def distinct_plan(plan: Path, rest_before_s: float = 1800.0) -> Path:
     """The design's plan with each distinct profile run once, in the first group that selected it (the fit is
     cumulative: later groups fit on it too), beside it as ``plan.distinct.toml`` with the design's summary."""
     import json
@@ -102,7 +102,8 @@ def distinct_plan(plan: Path) -> Path:
             seen.add(str(st.profile.id))
             groups.setdefault(k, []).append(st.profile)
     out = plan.with_name("plan.distinct.toml")
-    proto = grouped_protocol("distinct", sorted(groups.items()), "distinct", ocv_table(Cell.load("nca18650")))
+    table = ocv_table(Cell.load("nca18650"))
+    proto = grouped_protocol("distinct", sorted(groups.items()), "distinct", table, rest_before_s=rest_before_s)
     out.write_text(tomli_w.dumps(proto.to_dict()))
     shutil.copy(sidecar_path(plan), sidecar_path(out))
     n = sum(len(v) for v in groups.values())
@@ -398,6 +399,7 @@ def main() -> None:
         help="run each distinct profile of the design once (a profile selected by "
         "several groups runs in the first; the cumulative fit sees it in the later stages too)",
     )
+    ap.add_argument("--rest-before", type=float, default=1800.0, help="rest before every profile [s]")
     ap.add_argument("--sequential", action="store_true", help="also the sequential design (see above)")
     ap.add_argument("--sequential-only", action="store_true", help="the sequential design alone")
     ap.add_argument("--workdir", default=None)
@@ -416,9 +418,9 @@ def main() -> None:
         seq = sequential(work, [int(x) for x in a.ids.split(",")], a.M, a.max_iter, seeds[-1], a.speed, noise)
         print(f"mean |log10 error|: sequential {seq:.3f} (seed {seeds[-1]})")
         return
-    plan = design(work, [int(x) for x in a.ids.split(",")], a.M, a.groups or None)
+    plan = design(work, [int(x) for x in a.ids.split(",")], a.M, a.groups or None, a.rest_before)
     if a.distinct:
-        plan = distinct_plan(plan)
+        plan = distinct_plan(plan, a.rest_before)
     tally: dict[str, list[tuple[bool, bool | None]]] = {}
     per_run: list[str] = []
     fit_s: list[float] = []

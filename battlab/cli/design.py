@@ -284,6 +284,15 @@ def _note(note: str | None) -> None:
     default=None,
     help="Noise model that weights the information: noise.toml or a campaign's noise.json [default: the paper's].",
 )
+@click.option(
+    "--rest-before",
+    "rest_before_s",
+    type=float,
+    default=1800.0,
+    show_default=True,
+    help="Rest before every profile [s]: the fit starts each profile from a relaxed cell, and a "
+    "slow electrode needs longer (nca18650-true: 0.79 mV of start-state error after 30 min, 0.08 mV after 2 h).",
+)
 @_NOISE_OPTION
 def design(
     store_path: str,
@@ -303,6 +312,7 @@ def design(
     noise_trials: int,
     noise_per_direction: int,
     noise_file: str | None,
+    rest_before_s: float,
     unweighted: bool,
 ) -> None:
     """Select M library profiles per parameter group (convex relaxation, rounding, checks) and write the plan.
@@ -343,6 +353,7 @@ def design(
         noise=noise,
         noise_trials=noise_trials,
         noise_per_direction=noise_per_direction,
+        rest_before_s=rest_before_s,
     )
     _note(rep.note)
     console = make_console()

@@ -290,6 +290,7 @@ def design(
     groups: Sequence[Sequence[str]] | None = None,
     noise_trials: int = 0,
     noise_per_direction: int = 2,
+    rest_before_s: float = 1800.0,
 ) -> DesignReport:
     """Select ``M`` library profiles per parameter group (convex relaxation, rounding, checks; eqs. 26–35) and
     write the plan TOML (whole experiment), one TOML per group, ``<plan>.summary.json`` and a figure of the
@@ -297,7 +298,8 @@ def design(
     (default: the paper's); ``groups``: the parameter groups themselves (instead of ``groups_spec``).
     ``noise_trials`` ≥ 2: the plan starts with that many repeated trials of ``noise_per_direction`` charge-only and
     as many discharge-only pulse profiles of the store's library (:func:`noise_trial_profiles`), from which
-    ``battlab fit`` fits eq. 38 (:mod:`battlab.identify.weights`); the summary's ``noise_trials`` lists them."""
+    ``battlab fit`` fits eq. 38 (:mod:`battlab.identify.weights`); the summary's ``noise_trials`` lists them.
+    ``rest_before_s``: the rest before every profile [s] (:data:`battlab.design.plan.REST_BEFORE_S`)."""
     from battlab.design import figures as figs
     from battlab.design import groups as gd
     from battlab.design import identifiability, information
@@ -307,6 +309,8 @@ def design(
 
     if M < 1:
         raise InputError(f"-M must be at least 1, got {M}")
+    if not rest_before_s >= 1800.0:
+        raise InputError(f"--rest-before must be at least 1800 s (the fit's start state needs it), got {rest_before_s}")
     if noise_trials == 1 or noise_trials < 0:
         raise InputError(f"--noise-trials must be 0 (none) or at least 2 (eq. 36 needs repeats), got {noise_trials}")
     if noise_trials and noise_per_direction < 1:
@@ -366,6 +370,7 @@ def design(
                 },
                 noise=noise_profs,
                 trials=noise_trials,
+                rest_before_s=rest_before_s,
             )
             window = _check_plan_window(files.plan, cell)
             failed = {p.profile_id: f"window: {p.problem}" for p in window.profiles if p.problem}

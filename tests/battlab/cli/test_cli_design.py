@@ -147,6 +147,21 @@ def test_design_puts_noise_trials_at_the_start_of_the_plan(workdir: Path) -> Non
     assert r.exit_code == 2 and "--noise-trials must be 0 (none) or at least 2" in r.stderr
 
 
+def test_design_rests_as_long_as_asked_before_every_profile(workdir: Path) -> None:
+    from protocols.protocol import Rest
+
+    plan = workdir / "rest" / "plan.toml"
+    args = ["design", str(workdir / "sens.h5"), "-o", str(plan), "-M", "1", "-k", "2"]
+    r = CliRunner().invoke(main, [*args, "--rest-before", "7200"])
+    assert r.exit_code == 0, r.output
+    for path in (plan, plan.with_name("plan.group1.toml")):
+        steps = Protocol.load(path).steps
+        before = [steps[k - 1] for k, st in enumerate(steps) if isinstance(st, ProfileStep)]
+        assert before and all(isinstance(st, Rest) and st.ends[0].value == 7200.0 for st in before)
+    r = CliRunner().invoke(main, [*args, "--rest-before", "600"])
+    assert r.exit_code == 2 and "--rest-before must be at least 1800 s" in r.stderr
+
+
 def test_design_with_a_criterion_and_a_budget(workdir: Path) -> None:
     plan = workdir / "a" / "plan.toml"
     r = CliRunner().invoke(
