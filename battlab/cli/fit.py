@@ -90,6 +90,14 @@ AMBIENT_OPTION = click.option(
     help="Fit the stages on the data within 5 K of T_ref, then refit their parameters with an activation energy "
     "(D_s, k, D_e_scale, kappa_scale) per other ambient and set the activation energies from them.",
 )
+@click.option(
+    "--noise",
+    "noise_file",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Noise model (eq. 38) that weighs the residuals: noise.toml, or a campaign's noise/noise.json [default: "
+    "fitted to the repeated trials in the run logs, else the paper's coefficients].",
+)
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="cell.bpx.json")
 def fit(
     data: tuple[str, ...],
@@ -108,12 +116,17 @@ def fit(
     extensions: tuple[str, ...],
     value_stages: tuple[str, ...],
     arrhenius: bool,
+    noise_file: str | None,
     output: str,
 ) -> None:
     """Identify CELL's parameters from DATA (equilibrium from an OCV test, dynamics by weighted LM).
 
     The result is written after the equilibrium fit and after every stage, marked partial until the last; a failing
-    stage is one line naming it and exit code 1, with the finished stages (or the equilibrium fit) kept."""
+    stage is one line naming it and exit code 1, with the finished stages (or the equilibrium fit) kept.
+
+    The residuals are weighted by a noise model (eqs. 36-40): --noise FILE, else eq. 38 fitted to the repeated
+    trials in the run logs (a plan's noise trials, `battlab design --noise-trials`), else the paper's coefficients;
+    the output and the summary's "noise" say which."""
     import json
     import sys
 
@@ -121,6 +134,10 @@ def fit(
     from battlab.io import paths
     from protocols.errors import InputError
 
+    if noise_file is not None:  # a bad file is one line before any data is read
+        from battlab.noise import load
+
+        load(noise_file)
     start: Any = cell_name
     if extensions:  # the extensions' parameters join the last stage (with --params all: every parameter)
         from battlab.cell import Cell
@@ -194,6 +211,7 @@ def fit(
             fix_sign=fix_sign,
             value_stages=values_,
             arrhenius=arrhenius,
+            noise=noise_file,
             on_values=show_values,
             on_stage=show,
             on_equilibrium=show_equilibrium,
@@ -215,6 +233,8 @@ def fit(
         sys.exit(130)
     for w in rep.warnings:
         click.echo(f"warning: {w}", err=True)
+    if "noise" in rep.summary:
+        _print_noise(rep.summary["noise"])
     last = rep.last
     if last is not None:
         _print_estimates(last)
@@ -248,6 +268,20 @@ def parse_ambients(values: tuple[str, ...]) -> dict[str, float] | None:
             raise InputError(f"--ambient {text!r}: {'all files' if key == '*' else key} given twice")
         out[key] = degc + 273.15
     return out or None
+
+
+def _print_noise(info: dict[str, Any]) -> None:
+    """Which noise model weighed the residuals, and the repeated trials' noise levels."""
+    m = info["model"]
+    click.echo(
+        f"noise model: {info['source']}: charge q = {m['a_c']:.4g} I + {m['b_c']:.4g} V, discharge q = "
+        f"{m['a_d']:.4g} exp({m['b_d']:.4g} I) V, floor {m['floor']:.3g} V (I: input intensity, A s^0.5)"
+    )
+    for t in info.get("trials", []):
+        click.echo(
+            f"  repeated trials of profile {t['profile']} ({t['direction']}, intensity {t['intensity']:.1f} A s^0.5): "
+            f"{t['trials']} trials, q {1e6 * t['q_V']:.0f} uV"
+        )
 
 
 def _print_estimates(r: Any) -> None:

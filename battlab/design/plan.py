@@ -66,23 +66,40 @@ def ocv_table(cell: Any, n: int = 21) -> list[tuple[float, float]]:
     return [(float(s), float(v)) for s, v in zip(socs, np.asarray(cell.ocv(socs), float), strict=True)]
 
 
+#: [s] the default rest before every profile. The fit starts each profile from rest at the SOC of the rest's last
+#: voltage, uniform inside the particles; the true cell's negative particles relax with τ = R_s²/D_s ≈ 4.3 h: after a
+#: 0.2-SOC discharge at C/2 and 30 min of rest the profile that follows differs from the uniform start by 0.79 mV
+#: RMS (noise-free, profile 541 on nca18650-true), after 2 h by 0.08 mV (the virtual tester's noise there: 0.19 mV).
+REST_BEFORE_S = 1800.0
+
+
 def grouped_protocol(
     name: str,
     groups: Sequence[tuple[int, list[Profile]]],
     description: str,
     ocv_table: Sequence[tuple[float, float]] | None = None,
+    noise: Sequence[Profile] = (),
+    trials: int = 0,
+    rest_before_s: float = REST_BEFORE_S,
 ) -> Protocol:
     """Concatenate the groups' profiles in order and label each profile step 'group k: profile ID' (the labels
     :func:`battlab.io.plan.design_groups` falls back on). ``ocv_table``: (SOC, OCV) pairs the CCCV steps to each
-    profile's start SOC hold to (default: the paper's Table 5)."""
-    flat = [p for _, ps in groups for p in ps]
-    kw = {} if ocv_table is None else {"ocv_table": ocv_table}
+    profile's start SOC hold to (default: the paper's Table 5). ``noise``, ``trials``: first, each noise profile
+    ``trials`` times in a row (each trial brought to its start SOC and rested like any profile), labelled
+    'noise: profile ID trial k' (:data:`battlab.identify.runlog.NOISE_LABEL`): the repeated trials that eq. 36
+    takes the tester's noise from. ``rest_before_s``: the rest before every profile [s] (:data:`REST_BEFORE_S`)."""
+    labels = [f"noise: profile {p.id} trial {k}" for p in noise for k in range(1, trials + 1)]
+    flat = [p for p in noise for _ in range(trials)]
+    labels += [f"group {g}: profile {p.id}" for g, ps in groups for p in ps]
+    flat += [p for _, ps in groups for p in ps]
+    kw: dict[str, Any] = {"rest_before_s": rest_before_s}
+    if ocv_table is not None:
+        kw["ocv_table"] = ocv_table
     proto = concatenate(flat, name=name, **kw).protocol
-    group_of = [g for g, ps in groups for _ in ps]
     steps, k = [], 0
     for st in proto.steps:
         if isinstance(st, ProfileStep):
-            st = ProfileStep(st.profile, f"group {group_of[k]}: profile {st.profile.id}")
+            st = ProfileStep(st.profile, labels[k])
             k += 1
         steps.append(st)
     return Protocol(proto.name, tuple(steps), proto.limits, proto.capacity_ah, description)
@@ -123,15 +140,20 @@ def write_plan(
     solve_seconds: float,
     extra: dict[str, Any] | None = None,
     ocv_table: Sequence[tuple[float, float]] | None = None,
+    noise: Sequence[Profile] = (),
+    trials: int = 0,
+    rest_before_s: float = REST_BEFORE_S,
 ) -> PlanFiles:
     """Write ``out`` (the whole plan), one TOML per group and the design's summary ``<out>.summary.json``, also as
-    ``summary.json`` (the name scripts read; the next command writing one in this directory replaces that copy)."""
+    ``summary.json`` (the name scripts read; the next command writing one in this directory replaces that copy).
+    ``noise``, ``trials``: the repeated noise trials at the start of the whole plan; ``rest_before_s``: the rest
+    before every profile (:func:`grouped_protocol`)."""
     out = Path(out)
     if out.suffix.lower() != ".toml":
         raise InputError(f"{out}: the plan is a .toml file")
     out.parent.mkdir(parents=True, exist_ok=True)
     per_group = [(d.index, [store.profile(pid) for pid in d.selected]) for d in designs]
-    all_profiles = [p for _, ps in per_group for p in ps]
+    all_profiles = [p for p in noise for _ in range(trials)] + [p for _, ps in per_group for p in ps]
     found = _library_ref(store, all_profiles, out.parent)
     ref, lib = found if found is not None else (None, None)
     cell = store.attrs["cell_name"]
@@ -140,13 +162,17 @@ def write_plan(
         + "; ".join(f"group {d.index} ({', '.join(d.new_parameters)}): profiles {d.selected}" for d in designs)
         + f" (design metadata in {sidecar_path(out).name})"
     )
-    whole = grouped_protocol(f"OED plan ({criterion}-optimal, {cell})", per_group, desc, ocv_table)
+    if noise and trials:
+        desc = f"{trials} noise trials of profiles {[p.id for p in noise]}, then the " + desc[0].lower() + desc[1:]
+    name = f"OED plan ({criterion}-optimal, {cell})"
+    whole = grouped_protocol(name, per_group, desc, ocv_table, noise, trials, rest_before_s)
     _write(whole, out, ref)
     group_paths = []
     for d, (g, ps) in zip(designs, per_group, strict=True):
         gp = out.with_name(f"{out.stem}.group{g}.toml")
         name = f"OED group {g} ({criterion}-optimal, {cell})"
-        _write(grouped_protocol(name, [(g, ps)], f"group {g}: {d.parameters}", ocv_table), gp, ref)
+        desc_g = f"group {g}: {d.parameters}"
+        _write(grouped_protocol(name, [(g, ps)], desc_g, ocv_table, rest_before_s=rest_before_s), gp, ref)
         group_paths.append(gp)
     _check_round_trip(out, all_profiles, lib)
     data = summary(

@@ -288,11 +288,18 @@ def design(
     unweighted: bool = False,
     noise: Any = None,
     groups: Sequence[Sequence[str]] | None = None,
+    noise_trials: int = 0,
+    noise_per_direction: int = 2,
+    rest_before_s: float = 1800.0,
 ) -> DesignReport:
     """Select ``M`` library profiles per parameter group (convex relaxation, rounding, checks; eqs. 26–35) and
     write the plan TOML (whole experiment), one TOML per group, ``<plan>.summary.json`` and a figure of the
     weights. ``noise`` (a :class:`battlab.noise.NoiseModel`, eqs. 36–40): the model that weights the information
-    (default: the paper's); ``groups``: the parameter groups themselves (instead of ``groups_spec``)."""
+    (default: the paper's); ``groups``: the parameter groups themselves (instead of ``groups_spec``).
+    ``noise_trials`` ≥ 2: the plan starts with that many repeated trials of ``noise_per_direction`` charge-only and
+    as many discharge-only pulse profiles of the store's library (:func:`noise_trial_profiles`), from which
+    ``battlab fit`` fits eq. 38 (:mod:`battlab.identify.weights`); the summary's ``noise_trials`` lists them.
+    ``rest_before_s``: the rest before every profile [s] (:data:`battlab.design.plan.REST_BEFORE_S`)."""
     from battlab.design import figures as figs
     from battlab.design import groups as gd
     from battlab.design import identifiability, information
@@ -302,6 +309,12 @@ def design(
 
     if M < 1:
         raise InputError(f"-M must be at least 1, got {M}")
+    if not rest_before_s >= 1800.0:
+        raise InputError(f"--rest-before must be at least 1800 s (the fit's start state needs it), got {rest_before_s}")
+    if noise_trials == 1 or noise_trials < 0:
+        raise InputError(f"--noise-trials must be 0 (none) or at least 2 (eq. 36 needs repeats), got {noise_trials}")
+    if noise_trials and noise_per_direction < 1:
+        raise InputError(f"--noise-profiles must be at least 1, got {noise_per_direction}")
     if budget is not None and budget <= 0:
         raise InputError(f"--budget must be positive, got {budget}")
     store, note = open_store(store_path)
@@ -328,6 +341,7 @@ def design(
             on_singular=singular,
         )
         cell = store.cell()
+        noise_profs = noise_trial_profiles(store, cell, noise_per_direction) if noise_trials else []
         before = set(info.excluded)
         info = window_screen(store, info, cell)
         for attempt in range(1, WINDOW_ATTEMPTS + 1):
@@ -350,7 +364,13 @@ def design(
                     "n_candidates": len(info),
                     "excluded": {str(k_): v for k_, v in info.excluded.items()},
                     "selected_profiles": {str(pid): meta_by_id[pid] for d in designs for pid in d.selected},
+                    "noise_trials": {"trials": noise_trials, "profiles": [str(p.id) for p in noise_profs]}
+                    if noise_trials
+                    else None,
                 },
+                noise=noise_profs,
+                trials=noise_trials,
+                rest_before_s=rest_before_s,
             )
             window = _check_plan_window(files.plan, cell)
             failed = {p.profile_id: f"window: {p.problem}" for p in window.profiles if p.problem}
@@ -366,6 +386,30 @@ def design(
     return DesignReport(
         designs, meta_by_id, settings, source, len(info), solve_seconds, files, fig, note, window, window_excluded
     )
+
+
+#: [s] the longest noise-trial profile (the campaign's quick setting): repeats multiply its cost
+NOISE_MAX_S = 900.0
+
+
+def noise_trial_profiles(store: Any, cell: Cell, per_direction: int) -> list[Any]:
+    """Pulse profiles for repeated noise trials from the library the store was swept from: ``per_direction``
+    charge-only and as many discharge-only ones spread over the intensities (eq. 38 fits one curve per direction),
+    gentle enough to stay inside the window on the design cell (the campaign's choice,
+    :func:`battlab.campaign.pipeline.noise_profiles`), at most :data:`NOISE_MAX_S` long."""
+    from battlab.campaign.pipeline import noise_profiles
+    from protocols.library import Library
+
+    lib_path = store.attrs.get("library_path") or ""
+    if not lib_path or not Path(lib_path).is_file():
+        raise InputError(
+            f"{store.path}: --noise-trials picks its profiles from the library the store was swept from, and "
+            f"{lib_path or 'none'} is not there"
+        )
+    picks = noise_profiles(Library.load(lib_path), per_direction, cell, NOISE_MAX_S)
+    if not picks:
+        raise InputError(f"{lib_path}: no charge-only or discharge-only pulse profile fits the noise trials")
+    return picks
 
 
 def _check_plan_window(plan: Path, cell: Cell) -> Any:

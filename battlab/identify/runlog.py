@@ -9,6 +9,11 @@ carries the plan's ``library_id`` (and ``group`` from a step labelled 'group k: 
 (the library ids each group selected) become the fit's stages. The steps that bring the cell to
 each profile's start SOC (CCCV, rests) and the rest after it are not fitted.
 
+Repeated trials: profile steps labelled 'noise: ...' (the noise trials ``battlab design --noise-trials`` puts at the
+start of a plan) are tagged ``noise_trial`` and are not fitted; they, and the trials of a plan run with ``repeat`` >
+1, carry a ``repeat_key`` shared by the trials of one profile, from which :func:`repeated_trials` gathers the
+voltages that eq. 36 takes the noise level from.
+
 Start state of a profile: the last step before it that sets the cell's state (:func:`state_steps`: a charge to
 V_max that tapered, or a rest of at least 30 min, as the design's plans have before every profile) plus the charge
 passed since (``Net Capacity / Ah``) over the cell's capacity; without such a step, the given ``soc0`` of the log's
@@ -36,6 +41,9 @@ from battlab.noise import NoiseModel
 from protocols.errors import InputError
 from protocols.protocol import ProfileStep
 
+#: the label prefix of a plan's repeated noise trials
+NOISE_LABEL = "noise"
+
 
 @dataclass(frozen=True)
 class ProfileRun:
@@ -47,6 +55,7 @@ class ProfileRun:
     start: int
     stop: int
     group: int | None = None  # the design group of the step's label 'group k: ...'
+    noise: bool = False  # a repeated noise trial (label 'noise: ...'), not fitted
 
 
 def logged_plan(data: LoggedData) -> Plan | None:
@@ -79,7 +88,8 @@ def profile_runs(data: LoggedData, plan: Plan) -> list[ProfileRun]:
             continue
         m = re.match(r"group (\d+)\b", steps[j - 1].label or "")
         group = int(m.group(1)) if m else None
-        found[(j, tr)] = ProfileRun(j, tr, str(steps[j - 1].profile.id), int(a), int(b), group)
+        noise = (steps[j - 1].label or "").lower().startswith(NOISE_LABEL)
+        found[(j, tr)] = ProfileRun(j, tr, str(steps[j - 1].profile.id), int(a), int(b), group, noise)
     return sorted(found.values(), key=lambda r: r.start)
 
 
@@ -159,7 +169,33 @@ def plan_experiments(
         tags: dict[str, Any] = {"library_id": r.profile_id, "step_index": r.step_index, "trial": r.trial}
         if r.group is not None:
             tags["group"] = r.group
+        if r.noise:
+            tags["noise_trial"] = True
+            tags["repeat_key"] = f"{data.name}:noise:{r.profile_id}"
+        elif repeated:
+            tags["repeat_key"] = f"{data.name}:step{r.step_index}"
         out += [replace(e, profile=e.profile.with_meta(params={**e.profile.params, **tags})) for e in exps]
+    return out
+
+
+def repeated_trials(exps: Sequence[Experiment]) -> list[tuple[str, Any, np.ndarray]]:
+    """The repeated trials among run-log experiments: (repeat key, the first trial's profile, voltages of shape
+    (n_trials, n_samples) cut to the shortest trial) for every key with at least two trials. A trial split at a
+    gap (several segments) is left out: its samples no longer line up with the others'."""
+    by: dict[str, list[Experiment]] = {}
+    split = {e.name.split("#")[0] for e in exps if "#" in e.name}
+    for e in exps:
+        key = e.profile.params.get("repeat_key")
+        if key is not None and e.name not in split and "#" not in e.name:
+            by.setdefault(str(key), []).append(e)
+    out = []
+    for key, trials in by.items():
+        if len(trials) < 2:
+            continue
+        n = min(e.voltage.size for e in trials)
+        if n < 10:
+            continue
+        out.append((key, trials[0].profile, np.stack([np.asarray(e.voltage[:n], float) for e in trials])))
     return out
 
 
@@ -223,4 +259,5 @@ __all__ = [
     "logged_plan",
     "plan_experiments",
     "profile_runs",
+    "repeated_trials",
 ]

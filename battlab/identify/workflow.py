@@ -210,6 +210,7 @@ def fit(
     on_values: Callable[[Any], None] | None = None,
     output: str | Path | None = None,
     hold_radii: bool = True,
+    noise: Any = None,
 ) -> FitReport:
     """Identify the cell's parameters from logged data: equilibrium from an OCV test, then the dynamic
     parameters by weighted LM, group by group and cumulatively (stages from ``plan``, else ``params``; ``params``
@@ -233,11 +234,15 @@ def fit(
     is written when done and reported to ``on_values``. ``arrhenius``: the stages fit the data within 5 K of the
     cell's T_ref only; then the last stage's parameters with an activation energy are refitted per other ambient and
     the activation energies set from them (:mod:`battlab.identify.arrhenius`), reported to ``on_values``. A failure
-    in a stage raises :class:`StageFailed` naming it, with the finished stages (or the equilibrium fit) kept on disk."""
+    in a stage raises :class:`StageFailed` naming it, with the finished stages (or the equilibrium fit) kept on disk.
+    ``noise`` (a :class:`battlab.noise.NoiseModel` or a noise file): the model that weighs the residuals; without
+    it, eq. 38 fitted to the repeated trials in the run logs, else the paper's (:mod:`battlab.identify.weights`);
+    ``summary["noise"]`` says which."""
     from battlab.identify import fit as F
     from battlab.identify import runlog
     from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
     from battlab.identify.forward import ForwardModel
+    from battlab.identify.weights import weigh
     from battlab.io.plan import Plan
 
     if full_charge not in FULL_CHARGE:
@@ -289,6 +294,9 @@ def fit(
             )
         ]
         exps = unique_names(exps)
+        exps, _, summary["noise"] = weigh(exps, noise)
+        if not exps:
+            raise InputError("the data hold only noise trials: nothing to fit")
         fm = ForwardModel(cell, v_margin=0.15)
         by_ambient: dict[float, list[Any]] = {}
         if arrhenius:

@@ -98,12 +98,22 @@ def load_in_subprocess() -> Callable[..., list[dict[str, object]]]:
     return _load_in_subprocess
 
 
-def _run_log(path: Path, ids: tuple[int, ...] = (28, 37), repeat: int = 1, truth: bool = True) -> tuple[Path, Path]:
+def _run_log(
+    path: Path,
+    ids: tuple[int, ...] = (28, 37),
+    repeat: int = 1,
+    truth: bool = True,
+    noise: tuple[int, ...] = (),
+    trials: int = 0,
+    noise_q: float = 0.0,
+) -> tuple[Path, Path]:
     """A run log as the runner writes it (its columns, step count and index, trial, the plan in its metadata) of a
     grouped plan of library profiles ``ids`` (profile k in group k), on nca18650 (its R_s moved to Table 4's truth
-    when ``truth``), without noise, sampled every second: the full charge tapering at 4.2 V, the rests at the OCV
-    of each profile's start SOC (SOC 0.8 for 28 and 37), the adjusting steps as ramps, the profiles simulated.
-    Returns (the log, the plan TOML written beside it)."""
+    when ``truth``), sampled every second: the full charge tapering at 4.2 V, the rests at the OCV of each
+    profile's start SOC (SOC 0.8 for 28 and 37), the adjusting steps as ramps, the profiles simulated, with white
+    noise of ``noise_q`` [V] (seeded) on the profiles' voltages. ``noise``, ``trials``: the plan starts with
+    ``trials`` noise trials of each of these library profiles. Returns (the log, the plan TOML written beside
+    it)."""
     import tomli_w
 
     import battlab
@@ -118,7 +128,9 @@ def _run_log(path: Path, ids: tuple[int, ...] = (28, 37), repeat: int = 1, truth
     cell = battlab.Cell.load("nca18650")
     sim = cell.with_values(R_s_n=P.SPECS["R_s_n"].truth, R_s_p=P.SPECS["R_s_p"].truth) if truth else cell
     lib = Library.build()
-    proto = grouped_protocol("loop", [(k, [lib[i]]) for k, i in enumerate(ids, start=1)], "test", ocv_table(cell))
+    groups = [(k, [lib[i]]) for k, i in enumerate(ids, start=1)]
+    proto = grouped_protocol("loop", groups, "test", ocv_table(cell), [lib[i] for i in noise], trials)
+    rng = np.random.default_rng(7)
     plan = Plan(proto, RunOptions(repeat=repeat, stable_hold_s=0.0))
     cols: dict[str, list[np.ndarray]] = {c: [] for c in logfile.COLUMNS}
     t0, soc, q = 0.0, 1.0, 0.0
@@ -126,7 +138,7 @@ def _run_log(path: Path, ids: tuple[int, ...] = (28, 37), repeat: int = 1, truth
         s = entry.step
         if isinstance(s, ProfileStep):
             res = battlab.simulate(sim, s.profile, soc0=soc)
-            i, v = np.asarray(s.profile.current), np.asarray(res.voltage)
+            i, v = np.asarray(s.profile.current), np.asarray(res.voltage) + noise_q * rng.standard_normal(res.t.size)
         elif isinstance(s, Rest):
             n = int(s.ends[0].value)
             i, v = np.zeros(n), np.full(n, float(cell.ocv(soc)))
@@ -167,7 +179,7 @@ def _run_log(path: Path, ids: tuple[int, ...] = (28, 37), repeat: int = 1, truth
 
 @pytest.fixture
 def run_log() -> Callable[..., tuple[Path, Path]]:
-    """``run_log(path, ids=(28, 37), repeat=1, truth=True)``: see :func:`_run_log`."""
+    """``run_log(path, ids=(28, 37), repeat=1, truth=True, noise=(), trials=0, noise_q=0.0)``: see :func:`_run_log`."""
     return _run_log
 
 

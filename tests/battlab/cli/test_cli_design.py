@@ -120,6 +120,48 @@ def test_design_writes_a_loadable_plan_and_the_summary_contract(workdir: Path) -
     assert not (plan.parent / "plan.design.json").exists()
 
 
+def test_design_puts_noise_trials_at_the_start_of_the_plan(workdir: Path) -> None:
+    """`--noise-trials 3`: the whole plan starts with three trials of one charge-only and one discharge-only pulse
+    profile of the library, labelled 'noise: ...' (the fit finds them there), then the design's profiles; the
+    group plans and the groups are the design's alone; the summary lists the trials. A noise model file weights
+    the design."""
+    from battlab.noise import NoiseModel, direction, save
+
+    plan = workdir / "noise" / "plan.toml"
+    noise = save(NoiseModel(0.0, 2e-4, 2e-4, 0.0, 1e-5), workdir / "noise.toml")
+    args = ["design", str(workdir / "sens.h5"), "-o", str(plan), "-M", "1", "-k", "2", "--noise-trials", "3"]
+    r = CliRunner().invoke(main, [*args, "--noise-profiles", "1", "--noise", str(noise)])
+    assert r.exit_code == 0, r.output
+    s = json.loads(plan.with_name("plan.summary.json").read_text())
+    assert s["noise_trials"]["trials"] == 3 and len(s["noise_trials"]["profiles"]) == 2
+    steps = [st for st in Protocol.load(plan).steps if isinstance(st, ProfileStep)]
+    noise_ids = s["noise_trials"]["profiles"]
+    assert [st.label for st in steps[:6]] == [f"noise: profile {i} trial {k}" for i in noise_ids for k in (1, 2, 3)]
+    assert sorted(direction(st.profile).value for st in steps[:6:3]) == ["charge", "discharge"]
+    assert [str(st.profile.id) for st in steps[6:]] == [str(i) for g in s["groups"] for i in g["selected"]]
+    assert all(st.label.startswith("group") for st in steps[6:])
+    group1 = Protocol.load(plan.with_name("plan.group1.toml")).steps
+    assert not any(st.label.startswith("noise") for st in group1 if isinstance(st, ProfileStep))
+    assert "noise trials of profiles" in r.output
+    r = CliRunner().invoke(main, [*args[:-1], "1"])
+    assert r.exit_code == 2 and "--noise-trials must be 0 (none) or at least 2" in r.stderr
+
+
+def test_design_rests_as_long_as_asked_before_every_profile(workdir: Path) -> None:
+    from protocols.protocol import Rest
+
+    plan = workdir / "rest" / "plan.toml"
+    args = ["design", str(workdir / "sens.h5"), "-o", str(plan), "-M", "1", "-k", "2"]
+    r = CliRunner().invoke(main, [*args, "--rest-before", "7200"])
+    assert r.exit_code == 0, r.output
+    for path in (plan, plan.with_name("plan.group1.toml")):
+        steps = Protocol.load(path).steps
+        before = [steps[k - 1] for k, st in enumerate(steps) if isinstance(st, ProfileStep)]
+        assert before and all(isinstance(st, Rest) and st.ends[0].value == 7200.0 for st in before)
+    r = CliRunner().invoke(main, [*args, "--rest-before", "600"])
+    assert r.exit_code == 2 and "--rest-before must be at least 1800 s" in r.stderr
+
+
 def test_design_with_a_criterion_and_a_budget(workdir: Path) -> None:
     plan = workdir / "a" / "plan.toml"
     r = CliRunner().invoke(

@@ -263,3 +263,28 @@ def test_a_run_log_is_fitted_in_its_plans_groups(tmp_path, run_log) -> None:
     stages = json.loads((tmp_path / "fitted.summary.json").read_text())["stages"]
     assert [st["parameters"] for st in stages] == [["R_s_n"], ["R_s_n", "R_s_p"]]
     assert [st["experiments"] for st in stages] == [["run:28"], ["run:28", "run:37"]]
+
+
+def test_fit_says_which_noise_model_weighed_it_and_takes_one_from_a_file(tmp_path, virtual_csv) -> None:
+    """Without repeated trials the paper's coefficients weigh the fit, and the output and the summary say so;
+    `--noise noise.toml` weighs it by the file's model (s² scales with 1/q²); a bad file is one line."""
+    from battlab.noise import NoiseModel, save
+
+    a = virtual_csv(tmp_path, 19, 1)
+    args = ["fit", a, "--cell", "nca18650", "--params", "R_s_n", "--max-iter", "3"]
+    r = CliRunner().invoke(main, [*args, "-o", str(tmp_path / "p.json")])
+    assert r.exit_code == 0, r.output
+    paper = json.loads((tmp_path / "p.summary.json").read_text())
+    assert paper["noise"]["source"].startswith("the paper's eq. 38 coefficients") and paper["noise"]["trials"] == []
+    assert "noise model: the paper's eq. 38 coefficients" in r.output
+    noise = save(NoiseModel(0.0, 1e-3, 1e-3, 0.0, 1e-5), tmp_path / "noise.toml")
+    r = CliRunner().invoke(main, [*args, "--noise", str(noise), "-o", str(tmp_path / "f.json")])
+    assert r.exit_code == 0, r.output
+    given = json.loads((tmp_path / "f.summary.json").read_text())
+    assert given["noise"]["source"] == f"file {noise}" and given["noise"]["model"]["b_c"] == 1e-3
+    assert f"noise model: file {noise}" in r.output
+    assert given["stages"][0]["s2"] != pytest.approx(paper["stages"][0]["s2"], rel=0.1)
+    (tmp_path / "bad.toml").write_text("[model]\na_c = 1\n")
+    r = CliRunner().invoke(main, [*args, "--noise", str(tmp_path / "bad.toml"), "-o", str(tmp_path / "b.json")])
+    assert r.exit_code == 2 and "bad.toml: model: missing" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "b.json").exists()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from battlab import Cell, InputError
@@ -102,3 +103,28 @@ def test_run_logs_of_the_same_name_keep_apart(tmp_path: Path, run_log) -> None:
         logs.append(load_data(run_log(tmp_path / d / "run.h5", ids=(28,))[0]))
     exps = workflow.unique_names([e for d in logs for e in runlog.experiments(d, Cell.load("nca18650"))])
     assert [e.name for e in exps] == ["run:28", "run:28~2"]
+
+
+def test_a_plans_noise_trials_give_the_fits_noise_model_and_are_not_fitted(tmp_path: Path, run_log) -> None:
+    """Three noise trials of profile 28 (labelled 'noise: ...') at the start of the plan: eq. 36 over the trials
+    gives the noise level they carry (white, 150 uV), the fit's experiments are the design's profiles alone, weighted
+    by the model fitted to the trials, and the summary says so; a noise file given instead wins."""
+    from battlab.identify.weights import PAPER, weigh
+    from battlab.noise import NoiseModel, save
+
+    log, _ = run_log(tmp_path / "run.h5", ids=(37,), noise=(28,), trials=3, noise_q=150e-6)
+    exps = runlog.experiments(load_data(log), Cell.load("nca18650"))
+    assert [e.name for e in exps] == ["run:28s5", "run:28s9", "run:28s13", "run:37"]
+    assert [bool(e.profile.params.get("noise_trial")) for e in exps] == [True, True, True, False]
+    kept, model, info = weigh(exps)
+    assert [e.name for e in kept] == ["run:37"]
+    assert info["source"].startswith("fitted to repeated trials (1 profiles, 3 trials")
+    assert [(t["profile"], t["trials"]) for t in info["trials"]] == [("28", 3)]
+    assert info["trials"][0]["q_V"] == pytest.approx(150e-6, rel=0.1)
+    assert model.q(kept[0].profile) == pytest.approx(150e-6, rel=0.1)  # a discharge like 28: its measured level
+    assert np.all(np.asarray(kept[0].variance) == pytest.approx(model.q(kept[0].profile) ** 2 + 1e-8 / 12, rel=1e-9))
+    given = NoiseModel(0.0, 3e-4, 3e-4, 0.0, 1e-5)
+    kept, model, info = weigh(exps, save(given, tmp_path / "noise.toml"))
+    assert model == given and info["source"] == f"file {tmp_path / 'noise.toml'}" and len(info["trials"]) == 1
+    _, model, info = weigh([e for e in exps if not e.profile.params.get("noise_trial")])
+    assert model == NoiseModel() and info["source"] == PAPER and info["trials"] == []
