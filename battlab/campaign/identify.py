@@ -163,8 +163,9 @@ def _slug(name: str) -> str:
 
 def residuals(logs: Mapping[str, Path], cell: Cell, out: Path) -> dict[str, Any]:
     """Residual analysis (battlab.diagnose.residuals) of the identified cell on each validation log: what the
-    simulation gets wrong, when, and whether the residual is white. The score tests of model extensions need the
-    extensions' sensitivities, which the model does not offer yet: no cause is named."""
+    simulation gets wrong, when, and whether the residual is white. Naming a cause (score tests of the model
+    extensions, held-out fits of the leading ones) is ``battlab diagnose``'s work: it takes minutes per hour of data,
+    so the campaign leaves it to that command and its summary says how to run it on these logs."""
     from battlab.campaign import data as D
     from battlab.diagnose.figures import conditional_errors, residual_vs_time
     from battlab.diagnose.residuals import analyse
@@ -189,6 +190,9 @@ def residuals(logs: Mapping[str, Path], cell: Cell, out: Path) -> dict[str, Any]
         figures.append(conditional_errors(a, out / f"{slug}.conditional.png").name)
     summary = {
         "method": "residual analysis only (battlab.diagnose.residuals); no extension was scored or fitted",
+        "name_a_cause": "battlab diagnose "
+        + " ".join(f"runs/validation/{Path(p).name}" for p in logs.values())
+        + " --cell fit/oed.bpx.json -o diagnosis/causes",
         "cause": None,
         "data": per,
         "figures": figures,

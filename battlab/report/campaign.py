@@ -193,6 +193,8 @@ def write_report(directory: Path, summaries: Mapping[str, Any], inputs: Mapping[
     if "diagnosis" in summaries:
         dg = summaries["diagnosis"]
         blocks = [Paragraph(dg["method"])]
+        if dg.get("name_a_cause"):
+            blocks.append(Paragraph(f"To name a cause, in the campaign directory: {dg['name_a_cause']}"))
         for n, a in dg["data"].items():
             blocks.append(
                 KeyValues(
