@@ -63,6 +63,41 @@ MIN_COVERAGE = 0.5
 #: s² (mean squared residual over the noise variance) above this with no cause named: say whether a refit of the
 #: base parameters would explain it
 S2_REFIT = 10.0
+#: a cause whose direction keeps less than this share after the base directions are projected out is one the base
+#: parameters mimic on these data
+MIMICKED = 0.05
+#: per cause: the library profile kind (``protocols.library.KINDS``) and the experiment that separates it from
+#: what it is confused with on data that cannot tell
+EXPERIMENT: dict[str, tuple[str, str]] = {
+    "contact_resistance": (
+        "pulse",
+        "short pulses at two ambient temperatures (a series resistance and the film "
+        "resistance R_f differ only in their temperature dependence)",
+    ),
+    "current_sensor": (
+        "pulse",
+        "pulses in both directions with long rests (an offset drains the cell at rest, a "
+        "gain scales charge and discharge alike)",
+    ),
+    "thermal": (
+        "drive",
+        "the same profile at two ambient temperatures (activation energies act only through a change of temperature)",
+    ),
+    "equilibrium": ("pulse", "long low-rate pulses (1000 s) over the SOC window with rests (the OCV curve)"),
+    "hysteresis": (
+        "pulse",
+        "charge and discharge pulses each followed by a rest (a change of direction, then relaxation onto the branch)",
+    ),
+    "double_layer": (
+        "pulse",
+        "1 s and 3 s bipolar pulses sampled at 10 Hz or faster (the double layer charges within milliseconds)",
+    ),
+    "capacity_fade": (
+        "pulse",
+        "a long test with rests at both ends (a loss of capacity shows in the charge balance over hours)",
+    ),
+    "electrolyte": ("pulse", "long high-rate pulses (300-1000 s at 2C or more: large electrolyte gradients)"),
+}
 #: widen the cell's voltage window by this [V] when replaying logged data (as ``battlab validate`` does)
 V_MARGIN = 0.15
 
@@ -166,6 +201,8 @@ class DiagnosisReport:
             lines.append(f"held-out RMSE of the cell: {g['rmse_before_mV']:.2f} mV (no cause passed: nothing fitted)")
         cause = s["cause"]
         lines.append(f"cause: {cause} ({s['verdict']})" if cause else f"cause: none ({s['verdict']})")
+        for c in s.get("cannot_tell", []):
+            lines.append(f"cannot tell: {c['cause']}: {c['why']}; would tell: {c['kind']} profile, {c['experiment']}")
         lines.append(f"({s['seconds']:.0f} s)")
         return "\n".join(lines)
 
@@ -301,6 +338,44 @@ def _mimicked_by(J: np.ndarray, S: np.ndarray, w: np.ndarray, names: Sequence[st
     den = np.sqrt(np.sum(Jw**2, axis=0)) * np.sqrt(np.sum(a**2))
     cos = np.abs(Jw.T @ a) / np.where(den > 0, den, np.inf)
     return [names[k] for k in np.argsort(cos)[::-1][:n] if cos[k] > 0]
+
+
+def _cannot_tell(
+    cause: str | None,
+    passing: Sequence[Any],
+    tested: Sequence[str],
+    ranked: Sequence[Any],
+    mimics: dict[str, list[str]],
+    s2: float | None,
+    base_share: float,
+) -> list[dict[str, Any]]:
+    """The causes these data cannot decide on, each with why and the experiment (library profile kind) that would:
+    with no cause named, those that pass their score test but whose fitted extension does not win on held-out
+    data, or (when the residual is over :data:`S2_REFIT` × the noise level and the base directions hold most of
+    it) those the base parameters mimic (under :data:`MIMICKED` of their direction left). Empty: the data decide
+    (a cause named, or nothing beyond the noise)."""
+    if cause is not None:
+        return []
+    out = []
+    for s in passing:
+        out.append(
+            {
+                "cause": s.cause,
+                "why": "passes its score test, but its fitted extension does not predict the "
+                "held-out data better than the base fit",
+            }
+        )
+    if not passing and s2 is not None and s2 > S2_REFIT and base_share > 0.5:
+        for s in ranked:
+            if s.cause in tested and s.projected_norm < MIMICKED:
+                out.append(
+                    {
+                        "cause": s.cause,
+                        "why": "its effect on these data lies along the base parameters' "
+                        f"({', '.join(mimics[s.cause])})",
+                    }
+                )
+    return [{**c, "kind": EXPERIMENT[c["cause"]][0], "experiment": EXPERIMENT[c["cause"]][1]} for c in out]
 
 
 def diagnose(
@@ -489,8 +564,12 @@ def diagnose(
             f"; the residual is {analysis.s2:.3g} × the noise level, but {100 * base_share:.0f} % of it lies along "
             "the base parameters' directions: refit them (battlab fit)"
         )
+    cannot_tell = _cannot_tell(cause, passing, tested, ranked, mimics, analysis.s2, base_share)
+    if cannot_tell:
+        verdict += "; cannot tell " + ", ".join(c["cause"] for c in cannot_tell) + " on these data"
     summary: dict[str, Any] = {
         "cause": cause,
+        "cannot_tell": cannot_tell,
         "ranking": [
             {**row, "passes": bool(s.dof > 0 and s.p_value < p_threshold), "mimicked_by": mimics[s.cause]}
             for row, s in zip(score.summary(ranked), ranked, strict=True)

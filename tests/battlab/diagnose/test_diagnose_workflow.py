@@ -65,7 +65,7 @@ def test_noise_only_names_no_cause(logs) -> None:
     rep = diagnose([logs["null"]], "nca18650")
     s = rep.summary
     assert s["cause"] is None and not any(r["passes"] for r in s["ranking"]), rep.text()
-    assert s["extension_gain"]["rmse_after_mV"] is None
+    assert s["extension_gain"]["rmse_after_mV"] is None and s["cannot_tell"] == []
     assert 0.7 < s["residual"]["s2"] < 1.5
     assert {r["cause"] for r in s["ranking"]} == {
         "thermal",
@@ -89,6 +89,11 @@ def test_a_contact_resistance_is_mimicked_by_the_base_and_the_verdict_says_refit
     assert row["projected"] < 0.05, row
     assert s["cause"] is None and "refit" in s["verdict"], rep.text()
     assert s["residual"]["rmse_mV"] > 10 and s["base_explained"] > 0.9
+    # and it says so: cannot tell, naming the experiment (library profile kind) that would
+    told = {c["cause"]: c for c in s["cannot_tell"]}
+    assert "contact_resistance" in told, rep.text()
+    assert told["contact_resistance"]["kind"] == "pulse" and "temperature" in told["contact_resistance"]["experiment"]
+    assert "cannot tell: contact_resistance" in rep.text()
 
 
 def test_one_file_holds_out_its_final_30_percent_several_the_last(logs) -> None:
