@@ -21,8 +21,9 @@ Profiles (1 s samples, 25 °C ambient, from SOC 0.8):
 The diagnosis reads one ambient per file, so an ambient step (what separates activation energies from the base
 scales) is not in these profiles: a thermal case is right as "cannot tell" naming the experiment.
 
-Outcome per case: the named cause, ``null`` (no cause, no hint), or ``cannot tell`` (no cause named but the
-summary's ``cannot_tell`` lists candidates and the experiment that would separate them). The table counts true
+Outcome per case: the named cause, ``cannot tell`` (no cause named, and the summary's ``cannot_tell`` or
+``untestable`` lists the true cause with the experiment that would tell; for a null case any ``cannot_tell``
+entry), else ``null``. The table counts true
 cause × outcome; "right" is the named cause equal to the true one.
 """
 
@@ -207,11 +208,17 @@ def make_case(path: Path, prof: Profile, cause: str | None, values: dict[str, fl
     return str(write_bdf_csv(LoggedData(path.name.split(".")[0], cols, {"soc0": SOC0}), path))
 
 
-def outcome(summary: dict[str, Any]) -> str:
-    """The diagnosis's answer: a cause, "cannot tell" or "null"."""
+def outcome(summary: dict[str, Any], truth: str | None) -> str:
+    """The diagnosis's answer: a cause; "cannot tell" when it names none but says the data cannot decide (noise
+    only: any ``cannot_tell`` entry; a hidden cause: that cause among ``cannot_tell`` or ``untestable``); else
+    "null"."""
     if summary.get("cause"):
         return str(summary["cause"])
-    return "cannot tell" if summary.get("cannot_tell") else "null"
+    told = {c["cause"] for c in summary.get("cannot_tell", [])}
+    if truth is None:
+        return "cannot tell" if told else "null"
+    told |= {c["cause"] for c in summary.get("untestable", [])}
+    return "cannot tell" if truth in told else "null"
 
 
 def run_case(
@@ -233,8 +240,9 @@ def run_case(
         "truth": cause or "null",
         "values": values,
         "seed": seed,
-        "outcome": outcome(s),
+        "outcome": outcome(s, cause),
         "cannot_tell": s.get("cannot_tell", []),
+        "untestable": [c["cause"] for c in s.get("untestable", [])],
         "ranking": [(r["cause"], r["p_value"], r["passes"], r["projected"]) for r in s["ranking"]],
         "threshold": s["threshold"]["p_value"],
         "s2": s["residual"]["s2"],
@@ -347,7 +355,7 @@ def main(argv: list[str] | None = None) -> int:
             t0 = time.perf_counter()
             rep = diagnose([path], CELL)
             sec = time.perf_counter() - t0
-            print(f"4 h at 1 s ({long.t.size} samples): {sec:.0f} s, outcome {outcome(rep.summary)}")
+            print(f"4 h at 1 s ({long.t.size} samples): {sec:.0f} s, outcome {outcome(rep.summary, None)}")
             if args.json:
                 d = json.loads(args.json.read_text()) if args.json.exists() else {"rows": rows}
                 d["timing_4h_s"] = sec

@@ -203,6 +203,10 @@ class DiagnosisReport:
         lines.append(f"cause: {cause} ({s['verdict']})" if cause else f"cause: none ({s['verdict']})")
         for c in s.get("cannot_tell", []):
             lines.append(f"cannot tell: {c['cause']}: {c['why']}; would tell: {c['kind']} profile, {c['experiment']}")
+        for c in s.get("untestable", []):
+            lines.append(
+                f"not testable here: {c['cause']} ({c['why']}); would tell: {c['kind']} profile, {c['experiment']}"
+            )
         lines.append(f"({s['seconds']:.0f} s)")
         return "\n".join(lines)
 
@@ -343,7 +347,6 @@ def _mimicked_by(J: np.ndarray, S: np.ndarray, w: np.ndarray, names: Sequence[st
 def _cannot_tell(
     cause: str | None,
     passing: Sequence[Any],
-    tested: Sequence[str],
     ranked: Sequence[Any],
     mimics: dict[str, list[str]],
     s2: float | None,
@@ -351,31 +354,46 @@ def _cannot_tell(
 ) -> list[dict[str, Any]]:
     """The causes these data cannot decide on, each with why and the experiment (library profile kind) that would:
     with no cause named, those that pass their score test but whose fitted extension does not win on held-out
-    data, or (when the residual is over :data:`S2_REFIT` × the noise level and the base directions hold most of
+    data, and (when the residual is over :data:`S2_REFIT` × the noise level and the base directions hold most of
     it) those the base parameters mimic (under :data:`MIMICKED` of their direction left). Empty: the data decide
     (a cause named, or nothing beyond the noise)."""
-    if cause is not None:
-        return []
-    out = []
-    for s in passing:
-        out.append(
-            {
-                "cause": s.cause,
-                "why": "passes its score test, but its fitted extension does not predict the "
-                "held-out data better than the base fit",
-            }
-        )
-    if not passing and s2 is not None and s2 > S2_REFIT and base_share > 0.5:
-        for s in ranked:
-            if s.cause in tested and s.projected_norm < MIMICKED:
-                out.append(
-                    {
-                        "cause": s.cause,
-                        "why": "its effect on these data lies along the base parameters' "
-                        f"({', '.join(mimics[s.cause])})",
-                    }
-                )
-    return [{**c, "kind": EXPERIMENT[c["cause"]][0], "experiment": EXPERIMENT[c["cause"]][1]} for c in out]
+    if cause is None:
+        out = {
+            s.cause: "passes its score test, but its fitted extension does not predict the held-out data better "
+            "than the base fit"
+            for s in passing
+        }
+        if s2 is not None and s2 > S2_REFIT and base_share > 0.5:
+            for s in ranked:
+                if s.projected_norm < MIMICKED and s.cause not in out:
+                    out[s.cause] = (
+                        f"its effect on these data lies along the base parameters' ({', '.join(mimics[s.cause])})"
+                    )
+    else:
+        out = {}
+    return [{"cause": c, "why": w, "kind": EXPERIMENT[c][0], "experiment": EXPERIMENT[c][1]} for c, w in out.items()]
+
+
+def _untestable(train: Sequence[Experiment], named: str | None, i_rest: float) -> list[dict[str, Any]]:
+    """Causes these data cannot show whatever their size (so "no cause" says nothing about them), with the
+    experiment that would: a double layer (charged within milliseconds) at samples 0.1 s or more apart; the
+    thermal extension's activation energies when every experiment has one ambient (they act only through a change
+    of temperature; the self-heating of a few kelvin is what the base scales absorb); hysteresis when the current
+    never changes direction."""
+    out = {}
+    dt = min(float(np.median(np.diff(e.profile.t))) for e in train)
+    if dt >= 0.1:
+        out["double_layer"] = f"samples {dt:g} s apart; the double layer charges within milliseconds"
+    if len({round(float(e.ambient), 1) for e in train}) == 1:
+        out["thermal"] = "one ambient temperature: activation energies are seen only through a change of temperature"
+    cur = np.concatenate([e.profile.current for e in train])
+    if not (np.any(cur > i_rest) and np.any(cur < -i_rest)):
+        out["hysteresis"] = "the current never changes direction"
+    return [
+        {"cause": c, "why": w, "kind": EXPERIMENT[c][0], "experiment": EXPERIMENT[c][1]}
+        for c, w in out.items()
+        if c != named
+    ]
 
 
 def diagnose(
@@ -564,12 +582,14 @@ def diagnose(
             f"; the residual is {analysis.s2:.3g} × the noise level, but {100 * base_share:.0f} % of it lies along "
             "the base parameters' directions: refit them (battlab fit)"
         )
-    cannot_tell = _cannot_tell(cause, passing, tested, ranked, mimics, analysis.s2, base_share)
+    cannot_tell = _cannot_tell(cause, passing, ranked, mimics, analysis.s2, base_share)
+    untestable = _untestable(train, cause, 0.01 * float(base["Q_nom"]))
     if cannot_tell:
         verdict += "; cannot tell " + ", ".join(c["cause"] for c in cannot_tell) + " on these data"
     summary: dict[str, Any] = {
         "cause": cause,
         "cannot_tell": cannot_tell,
+        "untestable": untestable,
         "ranking": [
             {**row, "passes": bool(s.dof > 0 and s.p_value < p_threshold), "mimicked_by": mimics[s.cause]}
             for row, s in zip(score.summary(ranked), ranked, strict=True)

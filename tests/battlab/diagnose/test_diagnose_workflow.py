@@ -125,3 +125,25 @@ def test_more_charge_than_the_cell_holds_is_an_input_error(tmp_path) -> None:
     p = write_bdf_csv(LoggedData("big", cols, {"soc0": 0.9}), tmp_path / "big.bdf.csv")
     with pytest.raises(InputError, match=r"big.bdf.csv: 9.999 Ah passed .* data and cell do not match"):
         diagnose([p], "nca18650")
+
+
+def test_causes_the_data_cannot_show_are_listed_with_the_experiment_that_would() -> None:
+    """A double layer at 1 s samples, activation energies at one ambient and hysteresis without a change of
+    direction are "not testable here", each with a library profile kind; a named cause is never listed."""
+    from battlab.diagnose.workflow import _untestable
+    from battlab.identify.fit import Experiment
+    from protocols.profile import Profile
+
+    t = np.arange(0.0, 600.0)
+    one_way = Profile(t, np.where(t < 300, -2.7, 0.0))
+    both = Profile(t, np.where(t < 300, -2.7, 1.0))
+    e = [Experiment("a", one_way, np.full(t.size, 3.6), 0.8, 1e-8, 298.15, None)]
+    got = {c["cause"]: c for c in _untestable(e, None, 0.027)}
+    assert set(got) == {"double_layer", "thermal", "hysteresis"}
+    assert all(c["kind"] in ("pulse", "sine", "drive") and c["experiment"] for c in got.values())
+    two = [
+        Experiment("a", both, np.full(t.size, 3.6), 0.8, 1e-8, 298.15, None),
+        Experiment("b", both, np.full(t.size, 3.6), 0.8, 1e-8, 273.15, None),
+    ]
+    assert {c["cause"] for c in _untestable(two, None, 0.027)} == {"double_layer"}
+    assert {c["cause"] for c in _untestable(e, "hysteresis", 0.027)} == {"double_layer", "thermal"}
