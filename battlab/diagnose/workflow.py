@@ -64,8 +64,8 @@ SOME_GAIN = 0.02
 CAPACITY_FACTOR = 1.5
 #: a simulation that reaches less than this share of a data set: data and cell do not match
 MIN_COVERAGE = 0.5
-#: s² (mean squared residual over the noise variance) above this with no cause named: say whether a refit of the
-#: base parameters would explain it
+#: the mean squared residual over the data's own white-noise variance (:func:`residuals.white_noise_variance`) above
+#: this with no cause named: say whether a refit of the base parameters would explain it
 S2_REFIT = 10.0
 #: a cause whose direction keeps less than this share after the base directions are projected out is one the base
 #: parameters mimic on these data
@@ -589,9 +589,11 @@ def diagnose(
     else:
         gain = {"rmse_before_mV": start_rmse, "rmse_after_mV": None, "held_out": held_name, "rmse_cell_mV": start_rmse}
         verdict = "no cause passes its score test"
-    if cause is None and analysis.s2 is not None and analysis.s2 > S2_REFIT and base_share > 0.5:
+    white_var = residuals.white_noise_variance(rr)
+    s2_white = float(np.mean(rr[np.isfinite(rr)] ** 2) / max(white_var, 1e-300))
+    if cause is None and s2_white > S2_REFIT and base_share > 0.5:
         verdict += (
-            f"; the residual is {analysis.s2:.3g} × the noise level, but {100 * base_share:.0f} % of it lies along "
+            f"; the residual is {s2_white:.3g} × the noise level, but {100 * base_share:.0f} % of it lies along "
             "the base parameters' directions: refit them (battlab fit)"
         )
     cannot_tell = _cannot_tell(
@@ -600,7 +602,7 @@ def diagnose(
         base_fit.rmse_held_out_mV if base_fit else float("nan"),
         ranked,
         mimics,
-        analysis.s2,
+        s2_white,
         base_share,
     )
     untestable = _untestable(train, cause, 0.01 * float(base["Q_nom"]))
@@ -623,6 +625,8 @@ def diagnose(
         },
         "indistinguishable": [[a, b, c] for a, b, c in twins],
         "base_explained": base_share,
+        "white_noise_mV": 1e3 * float(np.sqrt(white_var)),
+        "residual_over_noise": s2_white,
         "residual": analysis.summary(),
         "data": [name for name, _ in data_parts],
         "held_out": held_name,
