@@ -128,8 +128,8 @@ def test_more_charge_than_the_cell_holds_is_an_input_error(tmp_path) -> None:
 
 
 def test_causes_the_data_cannot_show_are_listed_with_the_experiment_that_would() -> None:
-    """A double layer at 1 s samples, activation energies at one ambient and hysteresis without a change of
-    direction are "not testable here", each with a library profile kind; a named cause is never listed."""
+    """The double layer (never score-tested), activation energies at one ambient and hysteresis without a change
+    of direction are "not testable here", each with a library profile kind; a named cause is never listed."""
     from battlab.diagnose.workflow import _untestable
     from battlab.identify.fit import Experiment
     from protocols.profile import Profile
