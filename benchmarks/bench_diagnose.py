@@ -261,6 +261,8 @@ def table(rows: list[dict[str, Any]]) -> str:
     truths = [c for c in (*CAUSES, "null") if any(r["truth"] == c for r in rows)]
     cols = [*CAUSES, "null", "cannot tell"]
     short = {c: c[:8] for c in cols}
+    if not rows:
+        return "no cases"
     w = max(len(c) for c in truths) + 2
     out = ["true \\ named".ljust(w) + " ".join(f"{short[c]:>8}" for c in cols) + "   right"]
     for tr in truths:
@@ -291,7 +293,10 @@ def table(rows: list[dict[str, Any]]) -> str:
         out += [f"  {k:3d} {t:<20} {n:<20} {100 * g:5.1f} %" for k, t, n, g in gains]
         out.append(f"  named with gain >= 30 %: {sum(g >= 0.3 for *_, g in gains)}/{len(gains)}")
     secs = np.array([r["seconds"] for r in rows])
-    out.append(f"time per diagnosis: median {np.median(secs):.0f} s, max {secs.max():.0f} s, total {secs.sum():.0f} s")
+    if secs.size:
+        out.append(
+            f"time per diagnosis: median {np.median(secs):.0f} s, max {secs.max():.0f} s, total {secs.sum():.0f} s"
+        )
     return "\n".join(out)
 
 
