@@ -1,0 +1,382 @@
+"""``battlab diagnose`` as an instrument: its error rates measured on seeded hidden-effect cases (the confusion table).
+
+Run: ``python benchmarks/bench_diagnose.py --cases 24 --nulls 10 --seed 1 --profile rich`` (30-60 min of CPU on
+2 cores), ``--timing`` for one diagnosis of 4 h of data at 1 s, ``--json out.json`` to save every case.
+
+Each case: the nominal cell (nca18650) with one catalog extension switched on at a size drawn at random from
+``SIZES`` (realistic ranges, the source or reason beside each), simulated on the profile, plus the virtual tester's
+physical measurement noise (:class:`drivers.virtual.noise.NoiseModel`: white ADC noise, a component growing with
+|I|, sampling jitter × dV/dt clipped to the last step's change, 100 µV quantisation; the logged current has its own
+white noise and 10 µA quantisation), written as a BDF CSV and diagnosed with the base cell
+(:func:`battlab.diagnose.workflow.diagnose`). Null cases are the nominal cell and the noise only. Causes are
+drawn in turn (case k has cause ``CAUSES[k % 8]``), so 24 cases give 3 per cause.
+
+Profiles (1 s samples, 25 °C ambient, from SOC 0.8):
+
+- ``drive``: 1 h of the UDDS drive cycle (the library's EV-model current);
+- ``rich``: about 1.1 h: a rest, discharge pulses (1C, 2C, 30-60 s), a rest after discharge, 10 min of UDDS, a
+  1C charge and a rest after it, a C/2 discharge, a rest, 5 min of UDDS. Directions change and rests follow
+  both charge and discharge, so hysteresis and OCV effects have a chance; the final 30 % is held out.
+
+The diagnosis reads one ambient per file, so an ambient step (what separates activation energies from the base
+scales) is not in these profiles: a thermal case is right as "cannot tell" naming the experiment.
+
+Outcome per case: the named cause, ``cannot tell`` (no cause named, and the summary's ``cannot_tell`` or
+``untestable`` lists the true cause with the experiment that would tell; for a null case any ``cannot_tell``
+entry), else ``null``. The table counts true
+cause × outcome; "right" is the named cause equal to the true one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import battlab  # noqa: E402
+from drivers.virtual.noise import NoiseModel  # noqa: E402
+from protocols import Profile  # noqa: E402
+from protocols.drive_cycles import Cycle, drive_profile  # noqa: E402
+
+CELL = "nca18650"
+SOC0 = 0.8
+AMBIENT_C = 25.0
+CAUSES = (
+    "contact_resistance",
+    "current_sensor",
+    "thermal",
+    "equilibrium",
+    "hysteresis",
+    "double_layer",
+    "capacity_fade",
+    "electrolyte",
+)
+
+
+def _sign(rng: np.random.Generator) -> float:
+    return float(rng.choice([-1.0, 1.0]))
+
+
+def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(rng.uniform(lo, hi))
+
+
+#: per cause: a function drawing its parameter values, and the source / reason of the ranges
+SIZES: dict[str, tuple[Callable[[np.random.Generator], dict[str, float]], str]] = {
+    "contact_resistance": (
+        lambda g: {"R_c": _u(g, 0.002, 0.010)},
+        "2-10 mOhm: an 18650 in a spring or clamp holder with 4-wire sense above the tabs (Guo et al. 2011; "
+        "holder datasheets quote 1-10 mOhm)",
+    ),
+    "current_sensor": (
+        lambda g: {"offset": _sign(g) * _u(g, 0.005, 0.030), "gain": _sign(g) * _u(g, 0.001, 0.01)},
+        "offset 5-30 mA, gain 0.1-1 %: cycler current accuracy 0.02-0.1 % of a 5-30 A range plus drift after "
+        "calibration (Arbin LBT, Maccor 4000 specifications)",
+    ),
+    "thermal": (
+        lambda g: {
+            "dE_D_s_n": _sign(g) * _u(g, 5e3, 15e3),
+            "dE_k_p": _sign(g) * _u(g, 5e3, 15e3),
+            "h2a_scale": float(np.exp(g.uniform(np.log(0.5), np.log(2.0)))),
+            "dUdT_offset": _sign(g) * _u(g, 2e-5, 1e-4),
+        },
+        "activation energies +-5-15 kJ/mol (published values for one material spread by 30-50 % of 20-50 kJ/mol); "
+        "surface heat transfer x0.5-2 (fixture and airflow); entropic coefficient +-0.02-0.1 mV/K",
+    ),
+    "equilibrium": (
+        lambda g: {
+            "d_sto_n": _sign(g) * _u(g, 0.003, 0.015),
+            "d_sto_p": _sign(g) * _u(g, 0.003, 0.015),
+            "dU": _sign(g) * _u(g, 0.001, 0.005),
+        },
+        "stoichiometry shifts 0.3-1.5 % and an OCV offset 1-5 mV: electrode balancing from a C/20 test and "
+        "cell-to-cell spread (Mohtat et al. 2019)",
+    ),
+    "hysteresis": (
+        lambda g: {
+            "M_n": _u(g, 0.005, 0.020),
+            "gamma_n": _u(g, 20.0, 100.0),
+            "M_p": _u(g, 0.0, 0.010),
+            "gamma_p": _u(g, 20.0, 100.0),
+        },
+        "graphite half-width 5-20 mV, NCA 0-10 mV, decay 20-100 per unit stoichiometry (Axen et al. 2022; "
+        "GITT charge/discharge OCV gaps of 10-40 mV)",
+    ),
+    "double_layer": (
+        lambda g: {"C_dl_n": _u(g, 0.1, 0.5), "C_dl_p": _u(g, 0.1, 0.5)},
+        "0.1-0.5 F/m2 (10-50 uF/cm2 of particle surface, EIS of graphite and NCA)",
+    ),
+    "capacity_fade": (
+        lambda g: {"I_side": _u(g, 0.5e-3, 3e-3), "lam_n": _u(g, 0.0, 2e-3), "lam_p": _u(g, 0.0, 2e-3)},
+        "side current 0.5-3 mA and active-material loss up to 0.2 %/h: the fast end (first cycles after "
+        "formation, 45 degC cycling); a calendar-aged cell loses ~1 %/month, invisible in 1-2 h",
+    ),
+    "electrolyte": (
+        lambda g: {
+            "De_slope": _sign(g) * _u(g, 0.2, 0.6),
+            "kappa_slope": _sign(g) * _u(g, 0.2, 0.6),
+            "dlnf_slope": _sign(g) * _u(g, 0.2, 0.6),
+        },
+        "relative slopes 0.2-0.6 per 1000 mol/m3: the spread of LiPF6 carbonate property fits over 0.5-1.5 M "
+        "(Valoen and Reimers 2005)",
+    ),
+}
+
+
+def profile(kind: str, q: float, hours: float | None = None) -> Profile:
+    """The test profile [A, + = charge] on a 1 s grid; ``hours``: repeat it to this length (the timing case)."""
+    udds = drive_profile(Cycle.UDDS)
+    if kind == "drive":
+        t = np.arange(0.0, 3601.0)
+        i = udds.value_at(np.mod(t, float(udds.t[-1])))
+    elif kind == "rich":
+        pieces = [
+            (300, 0.0),
+            *[(d, -c * q) for d, c in ((60, 1.0), (60, 0.0), (30, 2.0), (60, 0.0), (60, 1.0), (60, 0.0))],
+            (30, -2.0 * q),
+            (600, 0.0),  # rest after discharge
+            ("udds", 600),
+            (480, 1.0 * q),  # 1C charge
+            (600, 0.0),  # rest after charge
+            (480, -0.5 * q),
+            (300, 0.0),
+            ("udds", 300),
+        ]
+        ts, cs, t0 = [], [], 0.0
+        for a, b in pieces:
+            if a == "udds":
+                tt = np.arange(0.0, float(b))
+                ts.append(t0 + tt)
+                cs.append(udds.value_at(tt))
+                t0 += float(b)
+            else:
+                ts.append(t0 + np.arange(0.0, float(a)))
+                cs.append(np.full(int(a), float(b)))
+                t0 += float(a)
+        t = np.concatenate([*ts, [t0]])
+        i = np.concatenate([*cs, [0.0]])
+    else:
+        raise SystemExit(f"--profile: expected drive or rich, got {kind!r}")
+    if hours is not None:
+        n = int(np.ceil(hours * 3600.0 / t[-1]))
+        # repeated as is (the rich profile nets -0.15 SOC per repeat: 4 h end near SOC 0.25; its mirror, charging
+        # with 2C pulses from SOC 0.8, passes 4.2 V)
+        blocks = [i[:-1]] * n
+        i = np.concatenate([*blocks, [0.0]])[: int(hours * 3600) + 1]
+        t = np.arange(0.0, float(i.size))
+    return Profile(t, i, id=kind)
+
+
+def noisy(
+    v: np.ndarray, i: np.ndarray, t: np.ndarray, rng: np.random.Generator, nm: NoiseModel
+) -> tuple[np.ndarray, np.ndarray]:
+    """The virtual tester's readings of true voltage ``v`` and current ``i`` (vectorised
+    :meth:`NoiseModel.voltage` and :meth:`NoiseModel.current`)."""
+    dv = np.diff(v, prepend=v[0])
+    dvdt = dv / np.maximum(np.diff(t, prepend=t[0] - 1.0), 1e-9)
+    sigma = nm.voltage_white_V + nm.voltage_per_amp_V * np.abs(i)
+    slew = np.clip(dvdt * nm.sample_jitter_s * rng.standard_normal(v.size), -np.abs(dv), np.abs(dv))
+    vv = v + sigma * rng.standard_normal(v.size) + slew
+    vv = np.round(vv / nm.voltage_quantum_V) * nm.voltage_quantum_V
+    ii = i + nm.current_white_A * rng.standard_normal(i.size)
+    ii = np.round(ii / nm.current_quantum_A) * nm.current_quantum_A
+    return vv, ii
+
+
+def make_case(path: Path, prof: Profile, cause: str | None, values: dict[str, float], seed: int) -> str:
+    """Simulate the truth on ``prof``, add the virtual noise, write a BDF CSV; its path."""
+    from battlab.io.bdf import write_bdf_csv
+    from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE, LoggedData
+
+    truth = battlab.Cell.load(CELL)
+    if cause is not None:
+        truth = truth.with_extension(cause, **values)
+    res = battlab.simulate(truth, prof, soc0=SOC0, ambient=273.15 + AMBIENT_C)
+    if res.ended_by is not None:
+        raise RuntimeError(f"the truth stops early ({res.ended_by}) with {cause} {values}")
+    rng = np.random.default_rng(seed)
+    v, i = noisy(np.asarray(res.voltage), prof.current, prof.t, rng, NoiseModel())
+    cols = {TIME: prof.t, VOLTAGE: v, CURRENT: i, AMBIENT: np.full(prof.t.size, AMBIENT_C)}
+    return str(write_bdf_csv(LoggedData(path.name.split(".")[0], cols, {"soc0": SOC0}), path))
+
+
+def outcome(summary: dict[str, Any], truth: str | None) -> str:
+    """The diagnosis's answer: a cause; "cannot tell" when it names none but says the data cannot decide (noise
+    only: any ``cannot_tell`` entry; a hidden cause: that cause among ``cannot_tell`` or ``untestable``); else
+    "null"."""
+    if summary.get("cause"):
+        return str(summary["cause"])
+    told = {c["cause"] for c in summary.get("cannot_tell", [])}
+    if truth is None:
+        return "cannot tell" if told else "null"
+    told |= {c["cause"] for c in summary.get("untestable", [])}
+    return "cannot tell" if truth in told else "null"
+
+
+def run_case(
+    workdir: Path, prof: Profile, k: int, cause: str | None, values: dict[str, float], seed: int
+) -> dict[str, Any]:
+    from battlab.diagnose.workflow import diagnose
+
+    path = make_case(workdir / f"case{k}.bdf.csv", prof, cause, values, seed)
+    t0 = time.perf_counter()
+    rep = diagnose([path], CELL)
+    sec = time.perf_counter() - t0
+    s = rep.summary
+    g = s["extension_gain"]
+    gain = None
+    if s["cause"] and g.get("rmse_after_mV") is not None and g["rmse_before_mV"] > 0:
+        gain = 1.0 - g["rmse_after_mV"] / g["rmse_before_mV"]
+    return {
+        "case": k,
+        "truth": cause or "null",
+        "values": values,
+        "seed": seed,
+        "outcome": outcome(s, cause),
+        "cannot_tell": s.get("cannot_tell", []),
+        "untestable": [c["cause"] for c in s.get("untestable", [])],
+        "ranking": [(r["cause"], r["p_value"], r["passes"], r["projected"]) for r in s["ranking"]],
+        "threshold": s["threshold"]["p_value"],
+        "s2": s["residual"]["s2"],
+        "rmse_mV": s["residual"]["rmse_mV"],
+        "held_out_gain": gain,
+        "rmse_before_mV": g["rmse_before_mV"],
+        "rmse_after_mV": g.get("rmse_after_mV"),
+        "confirmations": [(c["cause"], c["rmse_held_out_mV"]) for c in s["confirmations"]],
+        "verdict": s["verdict"],
+        "seconds": sec,
+    }
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    """The confusion table: true cause × outcome (counts), and the headline rates."""
+    truths = [c for c in (*CAUSES, "null") if any(r["truth"] == c for r in rows)]
+    cols = [*CAUSES, "null", "cannot tell"]
+    short = {c: c[:8] for c in cols}
+    if not rows:
+        return "no cases"
+    w = max(len(c) for c in truths) + 2
+    out = ["true \\ named".ljust(w) + " ".join(f"{short[c]:>8}" for c in cols) + "   right"]
+    for tr in truths:
+        rs = [r for r in rows if r["truth"] == tr]
+        counts = [sum(r["outcome"] == c for r in rs) for c in cols]
+        right = sum(r["outcome"] == (tr if tr != "null" else "null") for r in rs)
+        out.append(tr.ljust(w) + " ".join(f"{n:>8d}" for n in counts) + f"   {right}/{len(rs)}")
+    hidden = [r for r in rows if r["truth"] != "null"]
+    nulls = [r for r in rows if r["truth"] == "null"]
+    right = sum(r["outcome"] == r["truth"] for r in hidden)
+    wrong = sum(r["outcome"] not in (r["truth"], "null", "cannot tell") for r in hidden)
+    ct = sum(r["outcome"] == "cannot tell" for r in hidden)
+    out.append("")
+    if hidden:
+        out.append(
+            f"hidden-effect cases: {len(hidden)}; cause named right {right} ({100 * right / len(hidden):.0f} %), "
+            f"a wrong cause {wrong}, cannot tell {ct}, null {len(hidden) - right - wrong - ct}"
+        )
+    if nulls:
+        fa = sum(r["outcome"] not in ("null", "cannot tell") for r in nulls)
+        ctn = sum(r["outcome"] == "cannot tell" for r in nulls)
+        out.append(
+            f"null cases: {len(nulls)}; a cause named in {fa} ({100 * fa / len(nulls):.0f} %), cannot tell {ctn}"
+        )
+    gains = [(r["case"], r["truth"], r["outcome"], r["held_out_gain"]) for r in rows if r["held_out_gain"] is not None]
+    if gains:
+        out.append("held-out RMSE gain of the named extension (case, truth, named, gain):")
+        out += [f"  {k:3d} {t:<20} {n:<20} {100 * g:5.1f} %" for k, t, n, g in gains]
+        out.append(f"  named with gain >= 30 %: {sum(g >= 0.3 for *_, g in gains)}/{len(gains)}")
+    secs = np.array([r["seconds"] for r in rows])
+    if secs.size:
+        out.append(
+            f"time per diagnosis: median {np.median(secs):.0f} s, max {secs.max():.0f} s, total {secs.sum():.0f} s"
+        )
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cases", type=int, default=24, help="hidden-effect cases (cause k %% 8 of the catalog)")
+    ap.add_argument("--nulls", type=int, default=10, help="noise-only cases")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--profile", choices=("drive", "rich"), default="rich")
+    ap.add_argument("--causes", default=",".join(CAUSES), help="comma-separated subset of the catalog to draw from")
+    ap.add_argument("--json", type=Path, help="save every case's result here")
+    ap.add_argument("--timing", action="store_true", help="also time one diagnosis of 4 h at 1 s (a null case)")
+    args = ap.parse_args(argv)
+    causes = [c.strip() for c in args.causes.split(",") if c.strip()]
+    bad = [c for c in causes if c not in CAUSES]
+    if bad:
+        print(f"--causes: unknown cause {bad[0]!r}; expected some of {', '.join(CAUSES)}", file=sys.stderr)
+        return 2
+    q = float(battlab.Cell.load(CELL)["Q_nom"])
+    prof = profile(args.profile, q)
+    rng = np.random.default_rng(args.seed)
+    plan: list[tuple[str | None, dict[str, float]]] = []
+    for k in range(args.cases):
+        c = causes[k % len(causes)]
+        plan.append((c, SIZES[c][0](rng)))
+    # nulls spread among the hidden-effect cases (a run stopped early still has some of each)
+    for j in range(args.nulls):
+        plan.insert(round((j + 1) * len(plan) / (args.nulls + 1)) + j, (None, {}))
+    rows: list[dict[str, Any]] = []
+    print(f"profile {args.profile}: {prof.t[-1] / 3600:.2f} h at 1 s; {args.cases} hidden-effect + {args.nulls} null")
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, (cause, values) in enumerate(plan):
+            seed = 1000 * args.seed + k
+            try:
+                row = run_case(Path(tmp), prof, k, cause, values, seed)
+            except Exception as exc:  # a failed case is a row of the table, not the end of the run
+                row = {
+                    "case": k,
+                    "truth": cause or "null",
+                    "values": values,
+                    "seed": seed,
+                    "outcome": "error",
+                    "error": f"{type(exc).__name__}: {exc}",
+                    "held_out_gain": None,
+                    "seconds": 0.0,
+                }
+            rows.append(row)
+            vals = ", ".join(f"{n}={v:.3g}" for n, v in values.items())
+            print(
+                f"[{k:2d}] {row['truth']:<18} -> {row['outcome']:<18} {row['seconds']:5.0f} s  ({vals})"
+                + (f"  {row.get('error')}" if row["outcome"] == "error" else f"  {row['verdict'][:110]}"),
+                flush=True,
+            )
+            if args.json:
+                args.json.write_text(json.dumps({"profile": args.profile, "rows": rows}, indent=1, default=str))
+        if args.timing:
+            long = profile(args.profile, q, hours=4.0)
+            path = make_case(Path(tmp) / "long.bdf.csv", long, None, {}, 10**6 + args.seed)
+            from battlab.diagnose.workflow import diagnose
+
+            t0 = time.perf_counter()
+            rep = diagnose([path], CELL)
+            sec = time.perf_counter() - t0
+            print(f"4 h at 1 s ({long.t.size} samples): {sec:.0f} s, outcome {outcome(rep.summary, None)}")
+            if args.json:
+                d = json.loads(args.json.read_text()) if args.json.exists() else {"rows": rows}
+                d["timing_4h_s"] = sec
+                args.json.write_text(json.dumps(d, indent=1, default=str))
+    print()
+    print("sizes drawn per cause (source / reason):")
+    for c in causes:
+        print(f"  {c}: {SIZES[c][1]}")
+    print()
+    print(table([r for r in rows if r["outcome"] != "error"]))
+    errs = [r for r in rows if r["outcome"] == "error"]
+    if errs:
+        print(f"{len(errs)} case(s) failed: " + "; ".join(f"{r['case']}: {r['error']}" for r in errs))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
