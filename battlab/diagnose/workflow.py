@@ -16,8 +16,9 @@ model extension explains it, and whether that extension predicts data it was not
    the false-alarm rate of the whole ranking is at most ``alpha`` when the blocks outlast the error's correlation.
 5. Confirmation: the leading :data:`CONFIRM` passing causes' extension parameters (and those of passing causes
    indistinguishable from them, :func:`battlab.diagnose.score.indistinguishable`) are fitted on the training
-   part together with the :data:`N_BASE` base parameters whose directions explain most of the residual; the base
-   model gets the same fit of the same base parameters (same data, start, optimiser and stopping rule). A cause is
+   part together with the :data:`N_BASE` base parameters whose directions explain most of the residual (among
+   those the cell holds inside their search range: :func:`refit_names`); the base model gets the same fit of the
+   same base parameters (same data, start, optimiser and stopping rule). A cause is
    named only when its fitted extension's RMSE on the held-out part is at least :data:`MIN_GAIN` below the base
    fit's; otherwise the cause is null ("no significant discrepancy").
 """
@@ -293,6 +294,19 @@ def _candidates(passing: Sequence[Any], twins: Sequence[tuple[str, str, float]])
     return lead[:MAX_CONFIRM]
 
 
+def refit_names(cell: Cell, J: np.ndarray, r: np.ndarray, w: np.ndarray, names: Sequence[str]) -> tuple[str, ...]:
+    """The :data:`N_BASE` base parameters whose directions explain most of the residual ``r`` (|cos|, W), among
+    those ``cell`` holds inside their search range: one held outside it (a BPX cell's transference number or
+    kinetics beside the built-in ranges) would start its fit clipped to a bound, worse than the cell, and the
+    extensions would then be compared against that damage instead of against the cell."""
+    Jw = J * np.sqrt(w)[:, None]
+    norm = np.sqrt(np.sum(Jw**2, axis=0))
+    relevance = np.abs(Jw.T @ (r * np.sqrt(w))) / np.where(norm > 0, norm, np.inf)
+    inside = np.array([0.0 <= cell.normalised(n) <= 1.0 for n in names])
+    order = [k for k in np.argsort(relevance)[::-1] if inside[k]]
+    return tuple(names[k] for k in order[:N_BASE])
+
+
 def _mimicked_by(J: np.ndarray, S: np.ndarray, w: np.ndarray, names: Sequence[str], n: int = 2) -> list[str]:
     """The ``n`` base parameters whose directions are most nearly parallel to the extension's first (|cos|, W)."""
     sw = np.sqrt(w)
@@ -453,10 +467,7 @@ def diagnose(
     cause: str | None = None
     start_rmse = _held_out_rmse(fm, base, parts)
     if passing:
-        Jw = J * np.sqrt(w)[:, None]
-        norm = np.sqrt(np.sum(Jw**2, axis=0))
-        relevance = np.abs(Jw.T @ (r_raw * np.sqrt(w))) / np.where(norm > 0, norm, np.inf)
-        relevant = tuple(base_names[k] for k in np.argsort(relevance)[::-1][:N_BASE])
+        relevant = refit_names(base, J, r_raw, w, base_names)
         say(f"fitting the base model's {', '.join(relevant)} on the training part")
         base_fit = _confirm(base, None, relevant, train, parts, max_iter)
         for s in _candidates(passing, twins):
