@@ -312,13 +312,25 @@ def _candidates(passing: Sequence[Any], twins: Sequence[tuple[str, str, float]])
 
 def refit_names(cell: Cell, J: np.ndarray, r: np.ndarray, w: np.ndarray, names: Sequence[str]) -> tuple[str, ...]:
     """The :data:`N_BASE` base parameters whose directions explain most of the residual ``r`` (|cos|, W), among
-    those ``cell`` holds inside their search range: one held outside it (a BPX cell's transference number or
-    kinetics beside the built-in ranges) would start its fit clipped to a bound, worse than the cell, and the
-    extensions would then be compared against that damage instead of against the cell."""
+    those ``cell`` holds inside their search range and can take anywhere in it: one held outside it (a BPX cell's
+    transference number or kinetics beside the built-in ranges) would start its fit clipped to a bound, worse than
+    the cell, and the extensions would then be compared against that damage instead of against the cell; one whose
+    range holds impossible cells (a BPX cell's eps_e_n up to 0.45 beside its eps_s_n 0.69) would stop the fit
+    that tries them."""
     Jw = J * np.sqrt(w)[:, None]
     norm = np.sqrt(np.sum(Jw**2, axis=0))
     relevance = np.abs(Jw.T @ (r * np.sqrt(w))) / np.where(norm > 0, norm, np.inf)
-    inside = np.array([0.0 <= cell.normalised(n) <= 1.0 for n in names])
+
+    def fittable(name: str) -> bool:
+        if not 0.0 <= cell.normalised(name) <= 1.0:
+            return False
+        try:
+            cell.with_normalised(**{name: 0.0}).with_normalised(**{name: 1.0})
+        except InputError:
+            return False
+        return True
+
+    inside = np.array([fittable(n) for n in names])
     order = [k for k in np.argsort(relevance)[::-1] if inside[k]]
     return tuple(names[k] for k in order[:N_BASE])
 

@@ -32,6 +32,21 @@ def test_base_parameters_held_outside_their_range_are_not_refitted(nmc_bpx: Path
     assert chosen == ("D_s_n", "eps_e_p", "D_e_scale")
 
 
+def test_base_parameters_whose_range_holds_impossible_cells_are_not_refitted(nmc_bpx: Path) -> None:
+    """The BPX cell's eps_s_n is 0.69: eps_e_n's range reaches 0.45, where the pores and solid overfill the
+    electrode, and a fit that tried it stopped the whole diagnosis with an input error (PyBaMM's SEI case)."""
+    from battlab import Cell, parameters
+    from battlab.diagnose.workflow import refit_names
+
+    cell = Cell.from_bpx(nmc_bpx)
+    names = parameters.NAMES
+    assert 0.0 <= cell.normalised("eps_e_n") <= 1.0
+    J = np.random.default_rng(1).standard_normal((400, len(names)))
+    r = J[:, names.index("eps_e_n")] * 5.0 + J[:, names.index("c_e0")]
+    chosen = refit_names(cell, J, r, np.ones(400), names)
+    assert "eps_e_n" not in chosen and chosen[0] == "c_e0", chosen
+
+
 def test_the_noise_variance_is_measured_on_the_log() -> None:
     """Second differences over steady samples: within 10 % of the true level on a log with steps, relaxations,
     current-dependent noise and 100 µV quantisation; NaN with too few steady samples."""
