@@ -310,19 +310,25 @@ def _candidates(passing: Sequence[Any], twins: Sequence[tuple[str, str, float]])
     return lead[:MAX_CONFIRM]
 
 
+#: a base parameter the cell holds up to this far outside its search range (normalised θ̄) is still refitted (from
+#: the bound); farther out it is left at the cell's value
+RANGE_SLACK = 0.2
+
+
 def refit_names(cell: Cell, J: np.ndarray, r: np.ndarray, w: np.ndarray, names: Sequence[str]) -> tuple[str, ...]:
     """The :data:`N_BASE` base parameters whose directions explain most of the residual ``r`` (|cos|, W), among
-    those ``cell`` holds inside their search range and can take anywhere in it: one held outside it (a BPX cell's
-    transference number or kinetics beside the built-in ranges) would start its fit clipped to a bound, worse than
-    the cell, and the extensions would then be compared against that damage instead of against the cell; one whose
-    range holds impossible cells (a BPX cell's eps_e_n up to 0.45 beside its eps_s_n 0.69) would stop the fit
-    that tries them."""
+    those ``cell`` holds inside their search range (or within :data:`RANGE_SLACK` of it, normalised: a BPX cell's
+    film resistances of 0 start at their small lower bounds) and can take anywhere in it: one held far outside it
+    (a BPX cell's transference number or kinetics beside the built-in ranges) would start its fit clipped to a
+    bound, worse than the cell, and the extensions would then be compared against that damage instead of against
+    the cell; one whose range holds impossible cells (a BPX cell's eps_e_n up to 0.45 beside its eps_s_n 0.69)
+    would stop the fit that tries them."""
     Jw = J * np.sqrt(w)[:, None]
     norm = np.sqrt(np.sum(Jw**2, axis=0))
     relevance = np.abs(Jw.T @ (r * np.sqrt(w))) / np.where(norm > 0, norm, np.inf)
 
     def fittable(name: str) -> bool:
-        if not 0.0 <= cell.normalised(name) <= 1.0:
+        if not -RANGE_SLACK <= cell.normalised(name) <= 1.0 + RANGE_SLACK:
             return False
         try:
             cell.with_normalised(**{name: 0.0}).with_normalised(**{name: 1.0})

@@ -30,6 +30,11 @@ def test_base_parameters_held_outside_their_range_are_not_refitted(nmc_bpx: Path
     chosen = refit_names(cell, J, r, np.ones(500), names)
     assert len(chosen) == N_BASE and not set(chosen) & set(outside), chosen
     assert chosen == ("D_s_n", "eps_e_p", "D_e_scale")
+    # a film resistance of 0 lies just below its range (1e-4 Ohm m2 for R_f_p): it is refitted from the bound, so
+    # that a series resistance in the data is the base's to take up, not an extension's
+    weight["R_f_p"] = 6.0
+    r = J @ np.array([weight[n] for n in names])
+    assert refit_names(cell, J, r, np.ones(500), names)[0] == "R_f_p"
 
 
 def test_base_parameters_whose_range_holds_impossible_cells_are_not_refitted(nmc_bpx: Path) -> None:
