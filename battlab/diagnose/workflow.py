@@ -1,8 +1,9 @@
 """``battlab diagnose`` as a function on values: where the cell's simulation disagrees with logged data, which
 model extension explains it, and whether that extension predicts data it was not fitted to.
 
-1. The data are loaded and turned into experiments as ``battlab fit`` and ``validate`` do (start SOC, ambient,
-   weights: :func:`battlab.identify.experiments.experiments_from_data`); data and cell that do not match (voltage
+1. The data are loaded and turned into experiments as ``battlab fit`` and ``validate`` do (start SOC, ambient:
+   :func:`battlab.identify.experiments.experiments_from_data`), with the noise variance measured on each log's
+   own voltage (:func:`battlab.diagnose.residuals.measured_noise_variance`); data and cell that do not match (voltage
    outside the cell's window, rest voltage outside its OCV range, more charge than :data:`CAPACITY_FACTOR` times
    its capacity, a simulation that stops before half the data) are one :class:`InputError`.
 2. Training and held-out parts: with one file its final :data:`HELD_OUT_FRACTION` of samples is held out; with
@@ -16,8 +17,9 @@ model extension explains it, and whether that extension predicts data it was not
    the false-alarm rate of the whole ranking is at most ``alpha`` when the blocks outlast the error's correlation.
 5. Confirmation: the leading :data:`CONFIRM` passing causes' extension parameters (and those of passing causes
    indistinguishable from them, :func:`battlab.diagnose.score.indistinguishable`) are fitted on the training
-   part together with the :data:`N_BASE` base parameters whose directions explain most of the residual; the base
-   model gets the same fit of the same base parameters (same data, start, optimiser and stopping rule). A cause is
+   part together with the :data:`N_BASE` base parameters whose directions explain most of the residual (among
+   those the cell holds inside their search range: :func:`refit_names`); the base model gets the same fit of the
+   same base parameters (same data, start, optimiser and stopping rule). A cause is
    named only when its fitted extension's RMSE on the held-out part is at least :data:`MIN_GAIN` below the base
    fit's (a flexible extension fitted to another cause's residual wins by less: a 1 % current-sensor gain error
    was taken up 27 % by the OCV shifts); a passing cause that wins by :data:`SOME_GAIN` to :data:`MIN_GAIN` is
@@ -283,6 +285,21 @@ def _check_capacity(data: Any, cell: Cell) -> None:
         )
 
 
+def _measured_noise(e: Experiment, cell: Cell) -> Experiment:
+    """``e`` with the noise variance measured on its own voltage
+    (:func:`battlab.diagnose.residuals.measured_noise_variance`, steps of 1 % of the cell's capacity in A apart),
+    at least the quantisation's: the noise model's level (the paper's regression on intensity, eqs. 37–40) holds
+    for the paper's 2.7 Ah cell, and on a 12.5 Ah cell's hour it is over 1 V, which made s² and every
+    "above the noise" judgement meaningless. ``e`` unchanged when too few steady samples."""
+    from dataclasses import replace
+
+    from battlab.diagnose.residuals import measured_noise_variance
+    from battlab.identify.fit import QUANTUM
+
+    var = measured_noise_variance(e.voltage, e.profile.current, 0.01 * float(cell["Q_nom"]))
+    return replace(e, variance=max(var, QUANTUM**2 / 12.0)) if np.isfinite(var) else e
+
+
 def _simulate(fm: Any, e: Experiment, names: Sequence[str] = ()) -> Any:
     return fm.run(fm.theta_of(fm.cell), e.profile, e.soc0, ambient=e.ambient, T0=e.T0, sensitivities=names)
 
@@ -343,6 +360,37 @@ def _candidates(passing: Sequence[Any], twins: Sequence[tuple[str, str, float]])
     alike = {b if a in names else a for a, b, _ in twins if (a in names) != (b in names)}
     lead += [s for s in passing[CONFIRM:] if s.cause in alike]
     return lead[:MAX_CONFIRM]
+
+
+#: a base parameter the cell holds up to this far outside its search range (normalised θ̄) is still refitted (from
+#: the bound); farther out it is left at the cell's value
+RANGE_SLACK = 0.2
+
+
+def refit_names(cell: Cell, J: np.ndarray, r: np.ndarray, w: np.ndarray, names: Sequence[str]) -> tuple[str, ...]:
+    """The :data:`N_BASE` base parameters whose directions explain most of the residual ``r`` (|cos|, W), among
+    those ``cell`` holds inside their search range (or within :data:`RANGE_SLACK` of it, normalised: a BPX cell's
+    film resistances of 0 start at their small lower bounds) and can take anywhere in it: one held far outside it
+    (a BPX cell's transference number or kinetics beside the built-in ranges) would start its fit clipped to a
+    bound, worse than the cell, and the extensions would then be compared against that damage instead of against
+    the cell; one whose range holds impossible cells (a BPX cell's eps_e_n up to 0.45 beside its eps_s_n 0.69)
+    would stop the fit that tries them."""
+    Jw = J * np.sqrt(w)[:, None]
+    norm = np.sqrt(np.sum(Jw**2, axis=0))
+    relevance = np.abs(Jw.T @ (r * np.sqrt(w))) / np.where(norm > 0, norm, np.inf)
+
+    def fittable(name: str) -> bool:
+        if not -RANGE_SLACK <= cell.normalised(name) <= 1.0 + RANGE_SLACK:
+            return False
+        try:
+            cell.with_normalised(**{name: 0.0}).with_normalised(**{name: 1.0})
+        except InputError:
+            return False
+        return True
+
+    inside = np.array([fittable(n) for n in names])
+    order = [k for k in np.argsort(relevance)[::-1] if inside[k]]
+    return tuple(names[k] for k in order[:N_BASE])
 
 
 def _mimicked_by(J: np.ndarray, S: np.ndarray, w: np.ndarray, names: Sequence[str], n: int = 2) -> list[str]:
@@ -454,6 +502,7 @@ def diagnose(
     for p, d in zip(paths, loaded, strict=True):
         _check_capacity(d, base)
         exps = experiments_from_data(d, base, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
+        exps = [_measured_noise(e, base) for e in exps]
         data_parts.append((d.name, exps))
         if held_out is not None and str(held_out) in _file_key(p, d):
             hold_name = d.name
@@ -559,10 +608,7 @@ def diagnose(
     cause: str | None = None
     start_rmse = _held_out_rmse(fm, base, parts)
     if passing:
-        Jw = J * np.sqrt(w)[:, None]
-        norm = np.sqrt(np.sum(Jw**2, axis=0))
-        relevance = np.abs(Jw.T @ (r_raw * np.sqrt(w))) / np.where(norm > 0, norm, np.inf)
-        relevant = tuple(base_names[k] for k in np.argsort(relevance)[::-1][:N_BASE])
+        relevant = refit_names(base, J, r_raw, w, base_names)
         say(f"fitting the base model's {', '.join(relevant)} on the training part")
         base_fit = _confirm(base, None, relevant, train, parts, max_iter)
         for s in _candidates(passing, twins):
