@@ -165,17 +165,6 @@ def autocorrelation(r: np.ndarray, max_lag: int) -> np.ndarray:
     return acov / acov[0] if acov[0] > 0 else np.zeros(max_lag + 1)
 
 
-def white_noise_variance(r: np.ndarray) -> float:
-    """The white measurement noise's variance [V²] from the residual's sample-to-sample differences (robust: the
-    median absolute difference, so current steps and slow model error do not inflate it; quantisation is included).
-    A noise model's predicted level can be far from the tester's (eq. 38's coefficients give 1-2 mV on an hour of
-    driving where a cycler's ADC gives 0.1 mV): this is the level the data themselves show."""
-    d = np.diff(np.asarray(r, float)[np.isfinite(r)])
-    if d.size == 0:
-        return float("nan")
-    return float((1.4826 * np.median(np.abs(d - np.median(d)))) ** 2 / 2.0)
-
-
 def analyse(
     t: np.ndarray,
     measured: np.ndarray,

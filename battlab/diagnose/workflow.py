@@ -66,7 +66,7 @@ SOME_GAIN = 0.02
 CAPACITY_FACTOR = 1.5
 #: a simulation that reaches less than this share of a data set: data and cell do not match
 MIN_COVERAGE = 0.5
-#: the mean squared residual over the data's own white-noise variance (:func:`residuals.white_noise_variance`) above
+#: the mean squared residual over the data's own noise variance (:func:`residuals.measured_noise_variance`) above
 #: this with no cause named: say whether a refit of the base parameters would explain it
 S2_REFIT = 10.0
 #: a cause whose direction keeps less than this share after the base directions are projected out is one the base
@@ -634,7 +634,7 @@ def diagnose(
     else:
         gain = {"rmse_before_mV": start_rmse, "rmse_after_mV": None, "held_out": held_name, "rmse_cell_mV": start_rmse}
         verdict = "no cause passes its score test"
-    white_var = residuals.white_noise_variance(rr)
+    white_var = float(np.mean(np.concatenate(nvar)))  # each log's noise, measured on its own voltage
     s2_white = float(np.mean(rr[np.isfinite(rr)] ** 2) / max(white_var, 1e-300))
     if cause is None and s2_white > S2_REFIT and base_share > 0.5:
         verdict += (

@@ -78,15 +78,3 @@ def test_figures_are_drawn(tmp_path) -> None:  # noqa: ANN001 (pytest tmp_path)
         img = imread(png)
         assert img.shape[0] > 200 and img.shape[1] > 400
         assert float(np.std(img[..., :3])) > 0.05  # not blank
-
-
-def test_the_white_noise_level_is_read_from_the_data_not_from_slow_error_or_steps() -> None:
-    """0.1 mV white noise under a 5 mV slow drift and 20 mV steps every 100 s, quantised to 100 µV: the estimate is
-    the noise's (with the quantisation's Δ²/12), within 10 %."""
-    from battlab.diagnose.residuals import white_noise_variance
-
-    rng = np.random.default_rng(3)
-    t = np.arange(0.0, 4000.0)
-    r = 1e-4 * rng.standard_normal(t.size) + 5e-3 * np.sin(t / 900.0) + 0.02 * ((t // 100) % 2)
-    r = np.round(r / 1e-4) * 1e-4
-    assert white_noise_variance(r) == pytest.approx(1e-8 + 1e-8 / 12, rel=0.1)
