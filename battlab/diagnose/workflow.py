@@ -41,6 +41,7 @@ from battlab import parameters
 from battlab.cell import Cell
 from battlab.identify.data_files import Ambient, ambient_of, check_ambient_keys, load_all
 from battlab.identify.fit import Experiment
+from battlab.identify.informing import INFORMED_BY, one_ambient, rests_after_both_directions
 from battlab.identify.workflow import json_default
 from protocols.errors import InputError
 from protocols.profile import Profile
@@ -72,38 +73,6 @@ S2_REFIT = 10.0
 #: a cause whose direction keeps less than this share after the base directions are projected out is one the base
 #: parameters mimic on these data
 MIMICKED = 0.05
-#: per cause: the library profile kind (``protocols.library.KINDS``) and the experiment that separates it from
-#: what it is confused with on data that cannot tell
-EXPERIMENT: dict[str, tuple[str, str]] = {
-    "contact_resistance": (
-        "pulse",
-        "short pulses at two ambient temperatures (a series resistance and the film "
-        "resistance R_f differ only in their temperature dependence)",
-    ),
-    "current_sensor": (
-        "pulse",
-        "pulses in both directions with long rests (an offset drains the cell at rest, a "
-        "gain scales charge and discharge alike)",
-    ),
-    "thermal": (
-        "drive",
-        "the same profile at two ambient temperatures (activation energies act only through a change of temperature)",
-    ),
-    "equilibrium": ("pulse", "long low-rate pulses (1000 s) over the SOC window with rests (the OCV curve)"),
-    "hysteresis": (
-        "pulse",
-        "charge and discharge pulses each followed by a rest (a change of direction, then relaxation onto the branch)",
-    ),
-    "double_layer": (
-        "pulse",
-        "1 s and 3 s bipolar pulses sampled at 10 Hz or faster, fitted with the double layer on",
-    ),
-    "capacity_fade": (
-        "pulse",
-        "a long test with rests at both ends (a loss of capacity shows in the charge balance over hours)",
-    ),
-    "electrolyte": ("pulse", "long high-rate pulses (300-1000 s at 2C or more: large electrolyte gradients)"),
-}
 #: widen the cell's voltage window by this [V] when replaying logged data (as ``battlab validate`` does)
 V_MARGIN = 0.15
 
@@ -433,7 +402,7 @@ def _cannot_tell(
                     )
     else:
         out = {}
-    return [{"cause": c, "why": w, "kind": EXPERIMENT[c][0], "experiment": EXPERIMENT[c][1]} for c, w in out.items()]
+    return [{"cause": c, "why": w, "kind": INFORMED_BY[c][0], "experiment": INFORMED_BY[c][1]} for c, w in out.items()]
 
 
 def _untestable(train: Sequence[Experiment], named: str | None, i_rest: float) -> list[dict[str, Any]]:
@@ -445,13 +414,12 @@ def _untestable(train: Sequence[Experiment], named: str | None, i_rest: float) -
     never changes direction."""
     out = {}
     out["double_layer"] = "not score-tested: its voltage is not differentiable at its off value C_dl = 0"
-    if len({round(float(e.ambient), 1) for e in train}) == 1:
+    if one_ambient(train):
         out["thermal"] = "one ambient temperature: activation energies are seen only through a change of temperature"
-    cur = np.concatenate([e.profile.current for e in train])
-    if not (np.any(cur > i_rest) and np.any(cur < -i_rest)):
-        out["hysteresis"] = "the current never changes direction"
+    if not rests_after_both_directions(train, i_rest):
+        out["hysteresis"] = "no rest after a charge and after a discharge"
     return [
-        {"cause": c, "why": w, "kind": EXPERIMENT[c][0], "experiment": EXPERIMENT[c][1]}
+        {"cause": c, "why": w, "kind": INFORMED_BY[c][0], "experiment": INFORMED_BY[c][1]}
         for c, w in out.items()
         if c != named
     ]

@@ -242,6 +242,7 @@ def fit(
     from battlab.identify import runlog
     from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
     from battlab.identify.forward import ForwardModel
+    from battlab.identify.informing import check_informed
     from battlab.identify.weights import weigh
     from battlab.io.plan import Plan
 
@@ -308,6 +309,8 @@ def fit(
         logged = runlog.logged_groups(dyn) if plan is None and params is None else None
         groups = [(g.parameters, set(g.selected)) for g in logged] if logged is not None else None
         plan_stages = stages(params, plan, exps, groups, cell)
+        for st in plan_stages:
+            check_informed(st.names, st.experiments, 0.01 * float(cell["Q_nom"]))
         base_summary, base_extra = copy.deepcopy(summary), copy.deepcopy(extra)
 
         def stage_done(k: int, res: Any) -> None:

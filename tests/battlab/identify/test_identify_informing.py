@@ -1,0 +1,57 @@
+"""Extension parameters the data cannot inform are refused before a fit, with the experiment that would inform
+them: activation-energy changes at one ambient, hysteresis without a rest after charge and after discharge."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from battlab.identify.fit import Experiment
+from battlab.identify.informing import check_informed, uninformed
+from protocols import Profile
+from protocols.errors import InputError
+
+
+def _exp(current: list[tuple[float, float]], ambient_C: float = 25.0) -> Experiment:
+    """Piecewise-constant (current [A], duration [s]) at 1 s samples."""
+    i = np.concatenate([np.full(int(d), c) for c, d in current])
+    t = np.arange(i.size, dtype=float)
+    return Experiment("e", Profile(t, i, id="e"), np.full(i.size, 3.7), 0.5, 1e-8, ambient=ambient_C + 273.15)
+
+
+def test_activation_energies_need_two_ambients() -> None:
+    one = [_exp([(-2.7, 600), (0.0, 600)]), _exp([(-1.0, 600)], 27.0)]
+    assert set(uninformed(["thermal.dE_D_s_n", "thermal.h2a_scale", "R_f_n"], one, 0.027)) == {"thermal.dE_D_s_n"}
+    two = [*one, _exp([(-2.7, 600)], 10.0)]
+    assert uninformed(["thermal.dE_D_s_n"], two, 0.027) == {}
+
+
+def test_hysteresis_needs_a_rest_after_charge_and_after_discharge() -> None:
+    names = ["hysteresis.M_n", "hysteresis.gamma_n"]
+    discharge_only = [_exp([(-2.7, 300), (0.0, 600), (-2.7, 300), (0.0, 600)])]
+    assert set(uninformed(names, discharge_only, 0.027)) == set(names)
+    no_rest_after_charge = [_exp([(-2.7, 300), (0.0, 600), (2.7, 300), (-2.7, 30)])]
+    assert set(uninformed(names, no_rest_after_charge, 0.027)) == set(names)
+    both = [_exp([(-2.7, 300), (0.0, 120)]), _exp([(2.7, 300), (0.0, 120)])]
+    assert uninformed(names, both, 0.027) == {}
+    with pytest.raises(
+        InputError, match=r"hysteresis.M_n \(and hysteresis.gamma_n\): not identifiable .* followed by a rest"
+    ):
+        check_informed(names, discharge_only, 0.027)
+
+
+def test_fit_refuses_activation_energies_on_one_ambient_in_one_line(hidden_effect_csv, tmp_path) -> None:
+    from battlab.cli import main
+
+    data = hidden_effect_csv(tmp_path / "udds.bdf.csv")
+    r = CliRunner().invoke(
+        main,
+        ["fit", data, "--cell", "nca18650", "--extension", "thermal", "--params", "thermal.dE_D_s_n,R_f_n"]
+        + ["-o", str(tmp_path / "out.bpx.json")],
+    )
+    assert r.exit_code == 2, r.output
+    lines = r.output.strip().splitlines()
+    assert len(lines) == 1 and "thermal.dE_D_s_n: not identifiable from these data" in lines[0], r.output
+    assert "two ambient temperatures" in lines[0] and "Traceback" not in r.output
+    assert not (tmp_path / "out.bpx.json").exists()
