@@ -235,13 +235,14 @@ def truth_residuals(log: Path, noise: Path | None) -> None:
     for e in exps:
         out = fm.run(th, e.profile, e.soc0, ambient=e.ambient, T0=e.T0)
         k = out.voltage.size
-        r = out.voltage - e.voltage[:k]
+        r = (out.voltage - e.voltage[:k])[e.mask[:k]]  # the profile's samples (a lead-in only carries the state)
         for name, m in models.items():
-            chi2[name] += float(r @ r) / variance_of(e.profile, m)
-        n += k
-        q = 1e3 * np.sqrt(variance_of(e.profile, models[list(models)[-1]]))
-        tester = 1e3 * tester_noise(e.profile.current)
-        parts.append(f"{e.name} {1e3 * np.sqrt(np.mean(r**2)):.2f} mV (q {q:.3f} mV, tester {tester:.3f} mV)")
+            chi2[name] += float(r @ r) / variance_of(e.scored_profile, m)
+        n += r.size
+        q = 1e3 * np.sqrt(variance_of(e.scored_profile, models[list(models)[-1]]))
+        tester = 1e3 * tester_noise(e.scored_profile.current)
+        lead = f", lead-in {e.profile.t[e.lead_in]:.0f} s" if e.lead_in else ""
+        parts.append(f"{e.name} {1e3 * np.sqrt(np.mean(r**2)):.2f} mV (q {q:.3f} mV, tester {tester:.3f} mV{lead})")
     print(f"  truth on its log: RMSE {', '.join(parts)}")
     for name, c in chi2.items():
         s2 = c / n

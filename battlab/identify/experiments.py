@@ -92,6 +92,8 @@ def check_cell(data: LoggedData, cell: Cell) -> None:
 
 #: [V] a charge that ends this close to the cell's V_max, on a taper, leaves the cell full
 FULL_V_TOL = 0.015
+#: how :func:`state_steps` names a full charge (the start of its description)
+FULL_CHARGE = "the charge to"
 #: [s] a rest at least this long ends near equilibrium: its last voltage is the OCV
 LONG_REST_S = 1800.0
 
@@ -114,7 +116,7 @@ def state_steps(data: LoggedData, cell: Cell, i_rest: float) -> list[tuple[int, 
     for a, b in zip(starts[:-1], ends[:-1], strict=True):  # a step with data after it
         i, v = data.current[a:b], data.voltage[a:b]
         if i.max() > i_rest and abs(float(v[-1]) - v_max) <= FULL_V_TOL and 0 <= float(i[-1]) <= taper:
-            out.append((int(b), 1.0, f"the charge to {v_max:g} V ending at {float(data.t[b - 1]):.0f} s (SOC 1)"))
+            out.append((int(b), 1.0, f"{FULL_CHARGE} {v_max:g} V ending at {float(data.t[b - 1]):.0f} s (SOC 1)"))
         elif np.all(np.abs(i) <= i_rest) and float(data.t[b] - data.t[a]) >= LONG_REST_S:  # until the next step
             soc = cell.soc_from_voltage(float(np.clip(v[-1], lo, hi)))
             how = f"the rest ending at {float(data.t[b - 1]):.0f} s ({float(v[-1]):.4f} V, SOC {soc:.3f})"

@@ -44,6 +44,8 @@ class Experiment:
 
     ``voltage`` [V] at ``profile.t``; ``variance`` Q_i [V²] (scalar or per sample); start from rest at
     ``soc0``; ``ambient`` and ``T0`` [K]; ``mask`` selects the samples that enter the fit (default all).
+    ``lead_in``: the first samples only carry the cell's state into the scored part (e.g. the logged preparation
+    from a full charge to the profile's start): they are simulated, never scored (the mask excludes them).
     """
 
     name: str
@@ -55,6 +57,7 @@ class Experiment:
     T0: float | None = None
     mask: np.ndarray | None = None
     truth: np.ndarray | None = None  # noise-free voltage, when known (virtual lab)
+    lead_in: int = 0
 
     def __post_init__(self) -> None:
         v = np.asarray(self.voltage, float).reshape(-1)
@@ -67,12 +70,30 @@ class Experiment:
             raise InputError(f"experiment {self.name}: the variance Q must be positive and finite")
         object.__setattr__(self, "voltage", v)
         object.__setattr__(self, "variance", q)
-        m = np.ones(v.size, bool) if self.mask is None else np.asarray(self.mask, bool).reshape(-1)
+        m = np.ones(v.size, bool) if self.mask is None else np.asarray(self.mask, bool).reshape(-1).copy()
+        if not 0 <= self.lead_in < v.size:
+            raise InputError(f"experiment {self.name}: lead-in of {self.lead_in} samples for {v.size} samples")
+        m[: self.lead_in] = False
         object.__setattr__(self, "mask", m)
 
     @property
     def hours(self) -> float:
-        return self.profile.duration / 3600.0
+        """Duration of the scored part [h] (the lead-in left out)."""
+        return (self.profile.t[-1] - self.profile.t[self.lead_in]) / 3600.0
+
+    @property
+    def scored_profile(self) -> Profile:
+        """The profile after the lead-in (its time from 0, its metadata kept)."""
+        if not self.lead_in:
+            return self.profile
+        p = self.profile
+        t = p.t[self.lead_in :]
+        return Profile(t - t[0], p.current[self.lead_in :], id=p.id, kind=p.kind, soc0=p.soc0, params=dict(p.params))
+
+    @property
+    def scored_voltage(self) -> np.ndarray:
+        """The voltage after the lead-in [V]."""
+        return self.voltage[self.lead_in :]
 
 
 def variance_of(profile: Profile, noise: NoiseModel | None = None, quantum: float = QUANTUM) -> float:

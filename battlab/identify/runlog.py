@@ -17,7 +17,15 @@ voltages that eq. 36 takes the noise level from.
 Start state of a profile: the last step before it that sets the cell's state (:func:`state_steps`: a charge to
 V_max that tapered, or a rest of at least 30 min, as the design's plans have before every profile) plus the charge
 passed since (``Net Capacity / Ah``) over the cell's capacity; without such a step, the given ``soc0`` of the log's
-first sample plus the charge passed; else an error naming the profile.
+first sample plus the charge passed; else an error naming the profile. That start is a uniform cell, which a rest
+of 30 min after a partial discharge is not (the particles relax for hours). So where a full charge (a charge to
+V_max that tapered) precedes the profile by at most :data:`LEAD_IN_MAX_S`, with no gap in the log since, the
+experiment starts at the charge's end and replays the logged current through the preparation and the rest into the
+profile (its ``lead_in``, in :data:`LEAD_IN_DT` s bins, simulated but never scored): the CV phase leaves the cell
+nearly uniform, the simulation carries the gradients the preparation leaves. Its SOC there is the profile's start
+SOC above minus the charge passed since the full charge (the taper to C/20 stops a few mV short of equilibrium at
+V_max: measured on nca18650-true 0.993, not 1); a lead-in whose start SOC is not within :data:`LEAD_IN_SOC_TOL` of 1
+(the logged current does not explain the preparation) is not taken.
 
 When the run was interrupted and resumed, a step executed more than once is taken from its last (complete)
 execution.
@@ -33,16 +41,24 @@ from typing import Any
 import numpy as np
 
 from battlab.cell import Cell
-from battlab.identify.experiments import experiments_from_data, state_steps
+from battlab.identify.experiments import FULL_CHARGE, experiments_from_data, state_steps
 from battlab.identify.fit import Experiment
-from battlab.io.logged import CYCLE, NET_CAPACITY, STEP, STEP_INDEX, LoggedData
+from battlab.io.logged import CYCLE, NET_CAPACITY, STEP, STEP_INDEX, SURFACE, LoggedData
 from battlab.io.plan import DESIGN_GROUPS, DesignGroup, Plan, groups_from_dicts, label_groups
 from battlab.noise import NoiseModel
 from protocols.errors import InputError
+from protocols.profile import Profile
 from protocols.protocol import ProfileStep
 
 #: the label prefix of a plan's repeated noise trials
 NOISE_LABEL = "noise"
+#: [s] a full charge at most this long before a profile starts its lead-in (older ones: a uniform start)
+LEAD_IN_MAX_S = 12 * 3600.0
+#: a lead-in whose start SOC (the profile's start SOC minus the charge passed since the full charge) is further than
+#: this from 1 is not taken (the logged current does not explain the preparation: another capacity, a missed step)
+LEAD_IN_SOC_TOL = 0.05
+#: [s] the lead-in's time step: charge-conserving bins; the profile keeps the fit's ``dt``
+LEAD_IN_DT = 10.0
 
 
 @dataclass(frozen=True)
@@ -135,6 +151,7 @@ def plan_experiments(
     if ah is None:
         ah = np.concatenate([[0.0], np.cumsum(data.current[:-1] * np.diff(data.t))]) / 3600.0
     cap = cell.capacity()
+    full = [s for s in states if s[2].startswith(FULL_CHARGE)]
     ids = [r.profile_id for r in runs]
     repeated = plan.options.repeat > 1
     out: list[Experiment] = []
@@ -174,8 +191,49 @@ def plan_experiments(
             tags["repeat_key"] = f"{data.name}:noise:{r.profile_id}"
         elif repeated:
             tags["repeat_key"] = f"{data.name}:step{r.step_index}"
+        lead = [s for s in full if s[0] < r.start and data.t[r.start] - data.t[s[0]] <= LEAD_IN_MAX_S]
+        a = lead[-1][0] if lead else 0
+        soc_full = start - float(ah[r.start] - ah[a]) / cap
+        if lead and abs(soc_full - 1.0) <= LEAD_IN_SOC_TOL and not np.any(np.diff(data.t[a : r.start + 1]) > max_gap):
+            exps[0] = with_lead_in(exps[0], data, a, r.start, min(soc_full, 1.0))
         out += [replace(e, profile=e.profile.with_meta(params={**e.profile.params, **tags})) for e in exps]
     return out
+
+
+def with_lead_in(e: Experiment, data: LoggedData, a: int, b: int, soc0: float, dt: float = LEAD_IN_DT) -> Experiment:
+    """``e`` (whose profile starts at row ``b`` of ``data``) started at row ``a``: the logged current of rows [a, b)
+    in charge-conserving bins of about ``dt`` [s] before ``e``'s samples, as its unscored lead-in, from a uniform
+    cell at ``soc0`` at the surface temperature logged at row ``a``."""
+    t, i = data.t, data.current
+    n = max(1, int(np.ceil((t[b] - t[a]) / dt - 1e-9)))
+    grid = np.linspace(t[a], t[b], n + 1)
+    charge = np.concatenate([[0.0], np.cumsum(i[a:b] * np.diff(t[a : b + 1]))])  # A s at rows a..b (ZOH)
+    k = np.clip(np.searchsorted(t[a : b + 1], grid, side="right") - 1, 0, b - a)
+    q = charge[k] + i[a:][np.minimum(k, b - a - 1)] * (grid - t[a : b + 1][k])
+    q[-1] = charge[-1]
+    p = e.profile
+    prof = Profile(
+        np.concatenate([grid[:-1] - t[a], p.t - p.t[0] + t[b] - t[a]]),
+        np.concatenate([np.diff(q) / np.diff(grid), p.current]),
+        id=p.id,
+        kind=p.kind,
+        soc0=soc0,
+        params=dict(p.params),
+    )
+    q_var = np.broadcast_to(np.asarray(e.variance, float), e.voltage.shape)
+    surf = data.temperature_K(SURFACE)
+    T0 = float(surf[a]) if surf is not None and np.isfinite(surf[a]) else e.T0
+    return replace(
+        e,
+        profile=prof,
+        voltage=np.concatenate([np.interp(grid[:-1], t[a : b + 1], data.voltage[a : b + 1]), e.voltage]),
+        soc0=soc0,
+        variance=np.concatenate([np.full(n, q_var[0]), q_var]),
+        T0=T0,
+        mask=None if e.mask is None else np.concatenate([np.zeros(n, bool), e.mask]),
+        truth=None if e.truth is None else np.concatenate([np.full(n, np.nan), e.truth]),
+        lead_in=n,
+    )
 
 
 def repeated_trials(exps: Sequence[Experiment]) -> list[tuple[str, Any, np.ndarray]]:
@@ -192,10 +250,10 @@ def repeated_trials(exps: Sequence[Experiment]) -> list[tuple[str, Any, np.ndarr
     for key, trials in by.items():
         if len(trials) < 2:
             continue
-        n = min(e.voltage.size for e in trials)
+        n = min(e.scored_voltage.size for e in trials)
         if n < 10:
             continue
-        out.append((key, trials[0].profile, np.stack([np.asarray(e.voltage[:n], float) for e in trials])))
+        out.append((key, trials[0].scored_profile, np.stack([np.asarray(e.scored_voltage[:n], float) for e in trials])))
     return out
 
 
@@ -260,4 +318,5 @@ __all__ = [
     "plan_experiments",
     "profile_runs",
     "repeated_trials",
+    "with_lead_in",
 ]

@@ -51,5 +51,9 @@ def weigh(
         source = f"fitted to repeated trials ({len(rows)} profiles, {n} trials; eq. 36-38)"
     else:
         model, source = NoiseModel(), PAPER
-    kept = [replace(e, variance=variance_of(e.profile, model)) for e in exps if not e.profile.params.get("noise_trial")]
+    kept = [
+        replace(e, variance=variance_of(e.scored_profile, model))
+        for e in exps
+        if not e.profile.params.get("noise_trial")
+    ]
     return kept, model, {"source": source, "model": model.to_dict(), "trials": rows}
