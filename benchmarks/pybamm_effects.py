@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pybamm_reference import pybamm_zoh
 
 ROOT = Path(__file__).resolve().parents[1]
 BPX = Path(os.environ.get("BATTLAB_DATA", ROOT.parent / "shared" / "data")) / "bpx" / "nmc_pouch_cell_BPX.json"
@@ -193,21 +194,6 @@ def profile(q: float) -> Any:
     return Profile(np.arange(cur.size, dtype=float), cur, id="pulses+udds", soc0=SOC0)
 
 
-def _zoh(t: np.ndarray, current: np.ndarray) -> Any:
-    """Zero-order-hold current in PyBaMM's sign (positive = discharge), exactly: I_0 + Σ ΔI_k H(t − t_k), summed
-    as a balanced tree (a chain of thousands of terms overflows PyBaMM's recursive tree walks)."""
-    import pybamm
-
-    i_dis = -np.asarray(current, float)
-    terms = [pybamm.Scalar(float(i_dis[0]))]
-    for d, tk in zip(np.diff(i_dis[:-1]), t[1:-1], strict=True):
-        if d != 0.0:
-            terms.append(pybamm.Scalar(float(d)) * (pybamm.t >= pybamm.Scalar(float(tk))))
-    while len(terms) > 1:
-        terms = [terms[i] + terms[i + 1] if i + 1 < len(terms) else terms[i] for i in range(0, len(terms), 2)]
-    return terms[0]
-
-
 @dataclass
 class Truth:
     """PyBaMM's solution at the samples (right limits): time [s], voltage [V], current [A, + = charge],
@@ -233,7 +219,7 @@ def solve(case: Case, prof: Any, soc0: float = SOC0, ambient: float = AMBIENT_K)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             pv = pybamm.ParameterValues.create_from_bpx(str(path), target_soc=soc0)
-    pv["Current function [A]"] = _zoh(prof.t, prof.current)
+    pv["Current function [A]"] = pybamm_zoh(prof.t, prof.current)
     pv.update({"Ambient temperature [K]": ambient, "Initial temperature [K]": ambient})
     if case.values is not None:
         pv.update(case.values(pv), check_already_exists=False)
