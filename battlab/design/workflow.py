@@ -396,8 +396,8 @@ def noise_trial_profiles(store: Any, cell: Cell, per_direction: int) -> list[Any
     """Pulse profiles for repeated noise trials from the library the store was swept from: ``per_direction``
     charge-only and as many discharge-only ones spread over the intensities (eq. 38 fits one curve per direction),
     gentle enough to stay inside the window on the design cell (the campaign's choice,
-    :func:`battlab.campaign.pipeline.noise_profiles`), at most :data:`NOISE_MAX_S` long."""
-    from battlab.campaign.pipeline import noise_profiles
+    :func:`battlab.design.noise_trials.noise_profiles`), at most :data:`NOISE_MAX_S` long."""
+    from battlab.design.noise_trials import noise_profiles
     from protocols.library import Library
 
     lib_path = store.attrs.get("library_path") or ""
