@@ -128,16 +128,20 @@ def test_more_charge_than_the_cell_holds_is_an_input_error(tmp_path) -> None:
 
 
 def test_causes_the_data_cannot_show_are_listed_with_the_experiment_that_would() -> None:
-    """The double layer (never score-tested), activation energies at one ambient and hysteresis without a change
-    of direction are "not testable here", each with a library profile kind; a named cause is never listed."""
+    """The double layer (never score-tested), activation energies at one ambient and hysteresis without a rest after
+    a charge and after a discharge are "not testable here", each with a library profile kind; a named cause is never
+    listed."""
     from battlab.diagnose.workflow import _untestable
     from battlab.identify.fit import Experiment
     from protocols.profile import Profile
 
     t = np.arange(0.0, 600.0)
     one_way = Profile(t, np.where(t < 300, -2.7, 0.0))
-    both = Profile(t, np.where(t < 300, -2.7, 1.0))
+    no_rests = Profile(t, np.where(t < 300, -2.7, 1.0))
+    both = Profile(t, np.select([t < 200, t < 300, t < 500], [-2.7, 0.0, 1.0], 0.0))  # each direction, then a rest
     e = [Experiment("a", one_way, np.full(t.size, 3.6), 0.8, 1e-8, 298.15, None)]
+    e_no_rests = [Experiment("a", no_rests, np.full(t.size, 3.6), 0.8, 1e-8, 298.15, None)]
+    assert "hysteresis" in {c["cause"] for c in _untestable(e_no_rests, None, 0.027)}
     got = {c["cause"]: c for c in _untestable(e, None, 0.027)}
     assert set(got) == {"double_layer", "thermal", "hysteresis"}
     assert all(c["kind"] in ("pulse", "sine", "drive") and c["experiment"] for c in got.values())
