@@ -309,8 +309,10 @@ def fit(
         logged = runlog.logged_groups(dyn) if plan is None and params is None else None
         groups = [(g.parameters, set(g.selected)) for g in logged] if logged is not None else None
         plan_stages = stages(params, plan, exps, groups, cell)
-        for st in plan_stages:
-            check_informed(st.names, st.experiments, 0.01 * float(cell["Q_nom"]))
+        seen: list[Any] = []
+        for st in plan_stages:  # stages are cumulative: a stage fits its own and every earlier stage's data
+            seen += [e for e in st.experiments if e not in seen]
+            check_informed(st.names, seen, 0.01 * float(cell["Q_nom"]))
         base_summary, base_extra = copy.deepcopy(summary), copy.deepcopy(extra)
 
         def stage_done(k: int, res: Any) -> None:
