@@ -1,0 +1,131 @@
+"""What a diagnosis returns: each fitted cause's confirmation on held-out data, and the report (the one-screen
+text, ``summary.json`` as DESIGN.md's contract, the static HTML page with its PNG figures)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from battlab.identify.workflow import json_default
+
+
+@dataclass
+class Confirmation:
+    """One cause's held-out check: the fitted parameters and the RMSE [mV] on the held-out part."""
+
+    cause: str
+    names: tuple[str, ...]
+    values: dict[str, float]
+    rmse_train_mV: float
+    rmse_held_out_mV: float
+    converged: bool
+
+
+@dataclass
+class DiagnosisReport:
+    """The diagnosis: summary (the contract's ``summary.json``), residual analysis, score tests, confirmations."""
+
+    summary: dict[str, Any]
+    analysis: Any  # residuals.ResidualAnalysis over all data
+    scores: list[Any]  # score.ScoreResult per cause tested, ranked
+    confirmations: list[Confirmation]
+    base_fit: Confirmation | None
+    cell_name: str
+    warnings: list[str] = field(default_factory=list)
+
+    def text(self) -> str:
+        """A one-screen summary."""
+        s = self.summary
+        a = s["residual"]
+        lines = [
+            f"diagnosis of cell {self.cell_name!r} on {', '.join(s['data'])} (held out: {s['held_out']})",
+            f"residual: RMSE {a['rmse_mV']:.2f} mV, bias {a['bias_mV']:+.2f} mV, max {a['max_abs_mV']:.1f} mV, "
+            f"s² {a['s2']:.3g}, decorrelation {a['decorrelation_s']:.0f} s, "
+            f"{100 * a['slow_fraction']:.0f} % of its power below 1/600 Hz",
+            f"score tests (threshold p < {s['threshold']['p_value']:.2g}; LM/dof, block variance):",
+        ]
+        for row in s["ranking"]:
+            mark = "*" if row["passes"] else " "
+            lines.append(
+                f" {mark} {row['cause']:<20} {row['score']:10.3g}  dof {row['dof']}  p {row['p_value']:.2g}"
+                f"  ({100 * row['projected']:.0f} % not mimicked by the base"
+                + (f"; close to {', '.join(row['mimicked_by'])})" if row["projected"] < 0.05 else ")")
+            )
+        for a_, b_, c in s["indistinguishable"]:
+            lines.append(f"   {a_} and {b_} are indistinguishable on these data (|cos| {c:.2f})")
+        g = s["extension_gain"]
+        if self.base_fit is not None:
+            lines.append(f"held-out RMSE: base fit ({', '.join(self.base_fit.names)}) {g['rmse_before_mV']:.2f} mV")
+            for c in self.confirmations:
+                lines.append(f"               with {c.cause}: {c.rmse_held_out_mV:.2f} mV")
+        else:
+            lines.append(f"held-out RMSE of the cell: {g['rmse_before_mV']:.2f} mV (no cause passed: nothing fitted)")
+        cause = s["cause"]
+        lines.append(f"cause: {cause} ({s['verdict']})" if cause else f"cause: none ({s['verdict']})")
+        for c in s.get("cannot_tell", []):
+            lines.append(f"cannot tell: {c['cause']}: {c['why']}; would tell: {c['kind']} profile, {c['experiment']}")
+        for c in s.get("untestable", []):
+            lines.append(
+                f"not testable here: {c['cause']} ({c['why']}); would tell: {c['kind']} profile, {c['experiment']}"
+            )
+        lines.append(f"({s['seconds']:.0f} s)")
+        return "\n".join(lines)
+
+    def write(self, outdir: str | Path) -> Path:
+        """``summary.json``, the residual figures and ``report.html`` in ``outdir``; returns the page's path."""
+        from battlab.diagnose import figures
+        from battlab.report import html
+
+        out = Path(outdir)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "summary.json").write_text(json.dumps(self.summary, indent=2, default=json_default))
+        figs = [
+            html.Figure(figures.residual_vs_time(self.analysis, out / "residual.png"), "measured − simulated"),
+            html.Figure(
+                figures.conditional_errors(self.analysis, out / "conditional.png"),
+                "the error per bin of each feature (ordered by how much it depends on it)",
+            ),
+            html.Figure(figures.whiteness(self.analysis, out / "whiteness.png"), "autocorrelation and spectrum"),
+        ]
+        s = self.summary
+        verdict = f"cause: {s['cause']}" if s["cause"] else "no significant discrepancy"
+        rows = [[r["cause"], r["score"], r["dof"], r["p_value"], r["projected"], r["passes"]] for r in s["ranking"]]
+        g = s["extension_gain"]
+        conf_rows = []
+        if self.base_fit is not None:
+            b = self.base_fit
+            conf_rows.append(["base model", ", ".join(b.names), b.rmse_train_mV, b.rmse_held_out_mV, b.converged])
+        for c in self.confirmations:
+            conf_rows.append([c.cause, ", ".join(c.names), c.rmse_train_mV, c.rmse_held_out_mV, c.converged])
+        sections = [
+            html.Section("Verdict", [html.Paragraph(verdict + f" ({s['verdict']})", "bad" if s["cause"] else "good")]),
+            html.Section("Residual", [html.KeyValues({k: v for k, v in s["residual"].items() if k != "features"})]),
+            html.Section("Residual figures", figs),
+            html.Section(
+                "Score tests",
+                [
+                    html.Table(
+                        ["cause", "LM/dof", "dof", "p-value", "not mimicked", "passes"],
+                        rows,
+                        caption="score tests at the extensions' off values, base directions projected out",
+                        note=f"threshold: p < {s['threshold']['p_value']:.3g} ({s['threshold']['rule']})",
+                    ),
+                    *(
+                        html.Paragraph(f"{a} and {b} are indistinguishable on these data (|cos| {c:.2f})")
+                        for a, b, c in s["indistinguishable"]
+                    ),
+                ],
+            ),
+            html.Section(
+                "Held-out confirmation",
+                [
+                    html.KeyValues(g),
+                    html.Table(["model", "fitted", "training RMSE [mV]", "held-out RMSE [mV]", "converged"], conf_rows),
+                ],
+            ),
+        ]
+        if self.warnings:
+            sections.append(html.Section("Warnings", [html.Paragraph(w) for w in self.warnings]))
+        return html.write(out / "report.html", f"Diagnosis of {self.cell_name}", sections, subtitle=verdict)
