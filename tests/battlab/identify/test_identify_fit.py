@@ -245,7 +245,8 @@ def test_interval_coverage_over_seeds(setup) -> None:
 def test_full_problem_groupwise_recovery_from_nominal() -> None:
     """All 18 parameters, Table 9 groups, 1.8 h of library profiles, noise from the noise model, start at the
     nominal cell: at least 10 of the 12 interior parameters covered (docs/decisions.md; R_s, D_s, k, R_f by their
-    set-identified intervals), the diffusion times recovered, a held-out pulse train predicted within 2x noise."""
+    set-identified intervals), the diffusion times recovered, a held-out pulse train predicted within 2x noise.
+    15 evaluations per stage: the default 40 also covered 12 of 12 in 2.5 times the time."""
     from battlab.identify.symmetry import INVARIANTS
     from battlab.identify.validation import rmse_table
 
@@ -257,7 +258,7 @@ def test_full_problem_groupwise_recovery_from_nominal() -> None:
         F.Stage(g, tuple(synthesize(fm, truth, lib[i], lib[i].soc0, seed=i) for i in ids))
         for g, ids in zip(F.TABLE9_GROUPS, chosen, strict=True)
     ]
-    last = F.fit_groupwise(nominal, stages, forward=fm)[-1]
+    last = F.fit_groupwise(nominal, stages, forward=fm, options=F.Options(max_nfev=15))[-1]
     interior = [
         e
         for e in last.statistics.estimates
