@@ -97,9 +97,12 @@ class Ageing:
         return n, c
 
 
-def start_state(cell: Cell, n_li: float, capacity: float, voltage: float) -> tuple[float, float]:
+def start_state(
+    cell: Cell, n_li: float, capacity: float, voltage: float, *, clamp: bool = False
+) -> tuple[float, float]:
     """(θ⁻, θ⁺) at rest at the open-circuit ``voltage`` [V] with ``n_li`` [mol] of cyclable lithium in electrodes of
-    ``capacity`` times the cell's moles H± (eqs. 10, 11, 14). No such state: :class:`InputError`."""
+    ``capacity`` times the cell's moles H± (eqs. 10, 11, 14). No such state: :class:`InputError`, or with ``clamp``
+    the end of the stoichiometry range nearest to that voltage (an electrode full or empty first)."""
     hn, hp = capacity * cell.electrode_moles("n"), capacity * cell.electrode_moles("p")
 
     def theta_p(tn: float) -> float:
@@ -112,6 +115,10 @@ def start_state(cell: Cell, n_li: float, capacity: float, voltage: float) -> tup
     hi = min(1 - 1e-6, (n_li - hp * 1e-6) / hn)
     if lo >= hi:
         raise InputError(f"n_Li = {n_li:.5g} mol does not fit electrodes of {capacity:.4g} times the cell's")
+    if clamp and voltage <= ocv(lo):
+        return float(lo), float(theta_p(lo))
+    if clamp and voltage >= ocv(hi):
+        return float(hi), float(theta_p(hi))
     try:
         tn = brentq(lambda t: ocv(t) - voltage, lo, hi, xtol=1e-13)
     except ValueError:
@@ -123,16 +130,16 @@ def start_state(cell: Cell, n_li: float, capacity: float, voltage: float) -> tup
 
 def aged_cell(cell: Cell, n_li: float, capacity: float, why: str) -> Cell:
     """``cell`` with ``n_li`` [mol] of cyclable lithium and its electrode area A times ``capacity``: SOC 0 and 1 at the
-    open-circuit voltages they have in ``cell`` (its stoichiometry window recomputed, or n_Li set); ``why`` goes
-    into the sources."""
+    open-circuit voltages they have in ``cell`` (its stoichiometry window written, n_Li too if it has one), or where an
+    electrode fills or empties first when that voltage is out of reach (more lithium than the positive electrode
+    takes at V_min); ``why`` goes into the sources."""
     values: dict[str, float] = {"A": capacity * float(cell["A"])}
     if "n_Li" in cell.values:
         values["n_Li"] = n_li
-    if "sto_n_0" in cell.values:
-        v0, v1 = float(cell.ocv(0.0)), float(cell.ocv(1.0))
-        n0, p0 = start_state(cell, n_li, capacity, v0)
-        n1, p1 = start_state(cell, n_li, capacity, v1)
-        values.update(sto_n_0=n0, sto_n_100=n1, sto_p_0=p0, sto_p_100=p1)
+    v0, v1 = float(cell.ocv(0.0)), float(cell.ocv(1.0))
+    n0, p0 = start_state(cell, n_li, capacity, v0, clamp=True)
+    n1, p1 = start_state(cell, n_li, capacity, v1, clamp=True)
+    values.update(sto_n_0=n0, sto_n_100=n1, sto_p_0=p0, sto_p_100=p1)
     new = cell.with_values(**values)
     return Cell(new.name, new.values, {**new.sources, **dict.fromkeys(values, why)}, new.description, new.extensions)
 

@@ -82,6 +82,18 @@ def test_the_aged_cell_starts_where_the_file_started() -> None:
     assert aged.sources["A"] == "test"
 
 
+def test_an_aged_cell_whose_voltage_limits_are_out_of_reach_ends_where_an_electrode_fills_or_empties() -> None:
+    cell = battlab.Cell.load("nca18650")
+    n, c = cell.lithium_moles(), 0.85  # more lithium than the smaller electrodes take between 2.5 and 4.2 V
+    with pytest.raises(InputError, match="does not reach"):
+        A.start_state(cell, n, c, float(cell.ocv(0.0)))
+    aged = A.aged_cell(cell, n, c, "test")
+    n0, n1, p0, p1 = aged.stoichiometry_window()
+    assert max(p0, n1) == pytest.approx(1.0, abs=1e-5)  # the positive full at SOC 0 or the negative at SOC 1
+    assert float(cell["V_min"]) < float(aged.ocv(0.0)) < float(aged.ocv(1.0)) <= float(cell["V_max"])
+    assert aged.lithium_moles() == pytest.approx(n, rel=1e-9)
+
+
 @pytest.mark.slow
 def test_the_forward_model_of_a_file_matches_the_aged_cell() -> None:
     """The area factor as the current I/c with the contact drop corrected: the same voltage as the cell whose area
