@@ -91,6 +91,17 @@ AMBIENT_OPTION = click.option(
     "(D_s, k, D_e_scale, kappa_scale) per other ambient and set the activation energies from them.",
 )
 @click.option(
+    "--per-file-ageing",
+    "per_file_ageing",
+    default=None,
+    metavar="NAMES",
+    help="Give each data file its own ageing state, fitted with the shared parameters: 'n_Li' (cyclable lithium "
+    "[mol], within +-15 %% of the start cell's; every file starts at the OCV the start cell has at soc0) and/or "
+    "'capacity' (active electrode area, 0.7-1.05 of the start cell's), e.g. n_Li,capacity; for tests of one cell "
+    "on different dates. Each file's values and 95 %% intervals go to the summary and the BPX metadata; the "
+    "written cell holds their mean (one cell for every date).",
+)
+@click.option(
     "--noise",
     "noise_file",
     type=click.Path(dir_okay=False),
@@ -116,6 +127,7 @@ def fit(
     extensions: tuple[str, ...],
     value_stages: tuple[str, ...],
     arrhenius: bool,
+    per_file_ageing: str | None,
     noise_file: str | None,
     output: str,
 ) -> None:
@@ -212,6 +224,7 @@ def fit(
             value_stages=values_,
             arrhenius=arrhenius,
             noise=noise_file,
+            per_file_ageing=per_file_ageing or (),
             on_values=show_values,
             on_stage=show,
             on_equilibrium=show_equilibrium,
@@ -247,6 +260,8 @@ def fit(
             )
         if not last.statistics.valid:
             click.echo(f"warning: {last.statistics.reason}", err=True)
+    if "per_file_ageing" in rep.summary:
+        _print_ageing(rep.summary["per_file_ageing"])
     click.echo(f"wrote {out}, {summary_path} and {out.with_name('summary.json')}")
 
 
@@ -282,6 +297,22 @@ def _print_noise(info: dict[str, Any]) -> None:
             f"  repeated trials of profile {t['profile']} ({t['direction']}, intensity {t['intensity']:.1f} A s^0.5): "
             f"{t['trials']} trials, q {1e6 * t['q_V']:.0f} uV"
         )
+
+
+def _print_ageing(block: dict[str, Any]) -> None:
+    """Each file's ageing values with their 95 % intervals, and the state the written cell holds."""
+    for f, vals in block["files"].items():
+        parts = []
+        for n, v in vals.items():
+            ci = f" [{v['ci95'][0]:.5g}, {v['ci95'][1]:.5g}]" if v["ci95"] else ""
+            parts.append(f"{n} {v['value']:.5g}{ci}" + (f" (at {v['at_bound']} bound)" if v["at_bound"] else ""))
+        click.echo(f"ageing of {f}: " + ", ".join(parts))
+    ex = block["exported"]
+    click.echo(
+        "written cell: the mean, "
+        + ", ".join(f"{n} {ex[n]:.5g}" for n in block["names"])
+        + f" (start cell's n_Li {ex['reference_n_Li']:.5g} mol)"
+    )
 
 
 def _print_estimates(r: Any) -> None:

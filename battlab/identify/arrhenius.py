@@ -9,7 +9,8 @@ uses the exact sensitivities of the 18, so this costs one LM fit per temperature
 
 The fitted cell keeps the reference values and gets the new activation energies (clipped to
 :data:`E_RANGE`). Whatever else differs between the tests at those temperatures (e.g. a cell that aged between
-them) is attributed to the temperature as well: the report gives the per-temperature values to judge that.
+them) is attributed to the temperature as well: the report gives the per-temperature values to judge that; with
+per-file ageing (:mod:`battlab.identify.ageing`) each refit also fits its files' own lithium and capacity.
 """
 
 from __future__ import annotations
@@ -50,6 +51,8 @@ class ArrheniusFit:
     rmse_before_mV: dict[str, float] = field(default_factory=dict)
     rmse_after_mV: dict[str, float] = field(default_factory=dict)
     clipped: list[str] = field(default_factory=list)
+    #: per-file ageing values of the refits (file -> name -> {value, ci95, ...}), with ``ageing``
+    ageing: dict[str, dict[str, dict[str, object]]] = field(default_factory=dict)
 
     def report(self) -> dict[str, object]:
         return {
@@ -60,6 +63,7 @@ class ArrheniusFit:
             "clipped": self.clipped,
             "rmse_before_mV": self.rmse_before_mV,
             "rmse_after_mV": self.rmse_after_mV,
+            **({"ageing": self.ageing} if self.ageing else {}),
         }
 
 
@@ -80,10 +84,18 @@ def activated(names: Sequence[str]) -> tuple[str, ...]:
 
 
 def fit_arrhenius(
-    cell: Cell, groups: dict[float, list], names: Sequence[str], *, forward: object, options: object
+    cell: Cell,
+    groups: dict[float, list],
+    names: Sequence[str],
+    *,
+    forward: object,
+    options: object,
+    ageing: object = None,
 ) -> ArrheniusFit:
     """Refit ``names`` (those with an activation energy) of the reference-fitted ``cell`` on each ambient's
-    experiments and set the activation energies from the slopes (see the module docstring)."""
+    experiments and set the activation energies from the slopes (see the module docstring). ``ageing``
+    (:class:`battlab.identify.ageing.Ageing`): each file's own ageing values are fitted in its ambient's refit (the
+    temperature then explains only what ageing does not)."""
     from battlab.identify import fit as F
 
     names = activated(names)
@@ -97,8 +109,10 @@ def fit_arrhenius(
     values: dict[float, dict[str, float]] = {}
     before: dict[str, float] = {}
     after: dict[str, float] = {}
+    aged: dict[str, dict[str, dict[str, object]]] = {}
     for amb, exps in sorted(groups.items()):
-        res = F.fit(cell, exps, names, forward=forward, options=options)
+        res = F.fit(cell, exps, names, forward=forward, options=options, ageing=ageing)
+        aged.update(res.extra.get("ageing", {}))
         values[amb] = {n: float(res.cell[n]) for n in names}
         before.update(res.rmse_before_mV)
         after.update(res.rmse_mV)
@@ -113,4 +127,4 @@ def fit_arrhenius(
             clipped.append(key)
             e_new = float(np.clip(e_new, *E_RANGE))
         start[key], energies[key] = e_old, e_new
-    return ArrheniusFit(cell.with_values(**energies), names, values, start, energies, before, after, clipped)
+    return ArrheniusFit(cell.with_values(**energies), names, values, start, energies, before, after, clipped, aged)

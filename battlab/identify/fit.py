@@ -25,6 +25,7 @@ from scipy.optimize import least_squares
 from battlab import parameters
 from battlab.cell import Cell
 from battlab.identify import statistics
+from battlab.identify.ageing import Ageing, start_state
 from battlab.identify.forward import ForwardModel
 from battlab.identify.gauss_newton import GaussNewtonStep, bounded_gauss_newton
 from battlab.noise import NoiseModel
@@ -222,6 +223,7 @@ class _Problem:
         theta_full: np.ndarray,
         soc_span: float = 0.0,
         pool: ThreadPoolExecutor | None = None,
+        ageing: Ageing | None = None,
     ) -> None:
         self.fm = fm
         self.exps = list(experiments)
@@ -231,6 +233,17 @@ class _Problem:
         self.base = np.asarray(theta_full, float).copy()
         self.soc_span = float(soc_span)  # > 0: one start-SOC nuisance per experiment, soc0 ± soc_span
         self.n_nuis = len(self.exps) if self.soc_span > 0 else 0
+        # per-file ageing: each file (label) of the experiments gets the ageing names' columns after the nuisances
+        self.ageing = ageing
+        self.files: list[str] = []
+        self.file_of: list[int] = []
+        if ageing is not None:
+            for e in self.exps:
+                label = ageing.files.get(e.name, e.name)
+                if label not in self.files:
+                    self.files.append(label)
+                self.file_of.append(self.files.index(label))
+        self.n_age = len(self.files) * len(ageing.names) if ageing is not None else 0
         self._cache: dict[bytes, tuple[np.ndarray, np.ndarray, list[np.ndarray]]] = {}  # the last two points
         self.n_sim = 0  # simulations of all experiments (every evaluation not found in the cache)
         self.pool = pool
@@ -274,16 +287,50 @@ class _Problem:
         e = self.exps[i]
         p = len(self.names)
         soc0 = self.soc_of(i, x)
-        pred, S = self._run(th, e, soc0, True)
+        pred, S = self._run(th, i, soc0, True, x)
         w = 1.0 / np.sqrt(e.variance)
         m = e.mask
+        cols = [S]
         if self.n_nuis:  # dV/du by a one-sided difference (the start SOC has no exact sensitivity)
             h = 1e-3 if x[p + i] < 0.5 else -1e-3
-            p2, _ = self._run(th, e, soc0 + 2 * self.soc_span * h, False)
+            p2, _ = self._run(th, i, soc0 + 2 * self.soc_span * h, False, x)
             col = np.zeros((e.voltage.size, self.n_nuis))
             col[:, i] = (p2 - pred) / h
-            S = np.hstack([S, col])
+            cols.append(col)
+        if self.n_age:  # the file's ageing columns, one-sided differences as the start SOC's
+            col = np.zeros((e.voltage.size, self.n_age))
+            for j in self.age_columns(i):
+                h = 1e-3 if x[j] < 0.5 else -1e-3
+                xh = x.copy()
+                xh[j] += h
+                p2, _ = self._run(th, i, soc0, False, xh)
+                col[:, j - p - self.n_nuis] = (p2 - pred) / h
+            cols.append(col)
+        if len(cols) > 1:
+            S = np.hstack(cols)
         return ((pred - e.voltage) * w)[m], (S * w[:, None])[m], pred
+
+    def age_columns(self, i: int) -> list[int]:
+        """The positions in x of experiment i's file's ageing parameters."""
+        if not self.n_age or self.ageing is None:
+            return []
+        k = len(self.ageing.names)
+        first = len(self.names) + self.n_nuis + self.file_of[i] * k
+        return list(range(first, first + k))
+
+    def age_values(self, g: int, x: np.ndarray) -> dict[str, float]:
+        """File g's ageing values (physical units) at x."""
+        assert self.ageing is not None
+        k = len(self.ageing.names)
+        first = len(self.names) + self.n_nuis + g * k
+        return {n: self.ageing.denormalise(n, float(x[first + j])) for j, n in enumerate(self.ageing.names)}
+
+    def age_x0(self) -> np.ndarray:
+        """The ageing parameters' start (normalised), file by file."""
+        if self.ageing is None:
+            return np.zeros(0)
+        a = self.ageing
+        return np.array([a.normalise(n, a.start_value(f, n)) for f in self.files for n in a.names])
 
     def soc_of(self, i: int, x: np.ndarray) -> float:
         e = self.exps[i]
@@ -291,9 +338,29 @@ class _Problem:
             return e.soc0
         return float(np.clip(e.soc0 + 2 * self.soc_span * (x[len(self.names) + i] - 0.5), 0.0, 1.0))
 
-    def _run(self, th: np.ndarray, e: Experiment, soc0: float, sens: bool) -> tuple[np.ndarray, np.ndarray]:
-        out = self.fm.run(th, e.profile, soc0, ambient=e.ambient, T0=e.T0, sensitivities=self.names if sens else ())
+    def _run(self, th: np.ndarray, i: int, soc0: float, sens: bool, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Prediction and sensitivities of experiment i at θ (full) with the ageing values of x."""
+        e = self.exps[i]
         n = e.voltage.size
+        start, capacity = None, 1.0
+        if self.n_age and self.ageing is not None:
+            g = self.file_of[i]
+            label = self.files[g]
+            n_li, capacity = self.ageing.state(label, self.age_values(g, x))
+            try:
+                start = start_state(self.fm.cell, n_li, capacity, float(self.fm.cell.ocv(soc0)))
+            except InputError:  # no such state: a large but finite residual, as for nothing simulated
+                return np.full(n, e.voltage[0] + 1.0), np.zeros((n, len(self.names)))
+        out = self.fm.run(
+            th,
+            e.profile,
+            soc0,
+            ambient=e.ambient,
+            T0=e.T0,
+            sensitivities=self.names if sens else (),
+            start=start,
+            capacity=capacity,
+        )
         pred = np.empty(n)
         S = np.zeros((n, len(self.names)))
         k = out.voltage.size
@@ -359,6 +426,7 @@ def fit(
     start: Cell | None = None,
     stage: int = 1,
     soc_span: float = 0.0,
+    ageing: Ageing | None = None,
 ) -> FitResult:
     """Fit the dynamic parameters ``names`` of ``cell`` to ``experiments`` (eq. 41 by LM, eqs. 42–43).
 
@@ -368,6 +436,11 @@ def fit(
     projected off the nuisance columns) and ``extra["soc0"]`` holds the fitted start SOCs. A fit that stops
     without meeting the stopping rule
     returns its best point with ``convergence.converged = False`` and the reason.
+
+    ``ageing`` (:mod:`battlab.identify.ageing`): each data file of the experiments gets its own n_Li and/or
+    capacity, fitted with ``names`` (finite-difference columns, as the start SOCs); ``names``' statistics are
+    marginal over them, and ``extra["ageing"]`` holds each file's values with 95 % intervals (from the covariance of
+    all parameters). The fitted cell stays at the start cell's ageing state (the per-file values are relative to it).
     """
     names = parameters.check_names(list(names))
     if not names:
@@ -384,7 +457,7 @@ def fit(
     n_workers = min(opt.workers or cores, len(experiments)) if fm.thread_safe else 1
     pool = ThreadPoolExecutor(n_workers) if n_workers > 1 else None
     try:
-        return _fit(cell, experiments, names, opt, fm, start, stage, soc_span, theta_full, pool)
+        return _fit(cell, experiments, names, opt, fm, start, stage, soc_span, theta_full, pool, ageing)
     finally:
         if pool is not None:
             pool.shutdown()
@@ -401,9 +474,12 @@ def _fit(
     soc_span: float,
     theta_full: np.ndarray,
     pool: ThreadPoolExecutor | None,
+    ageing: Ageing | None = None,
 ) -> FitResult:
-    prob = _Problem(fm, experiments, names, theta_full, soc_span, pool)
-    x0 = np.r_[np.clip(theta_full[prob.idx], 1e-6, 1 - 1e-6), np.full(prob.n_nuis, 0.5)]
+    prob = _Problem(fm, experiments, names, theta_full, soc_span, pool, ageing)
+    x0 = np.r_[
+        np.clip(theta_full[prob.idx], 1e-6, 1 - 1e-6), np.full(prob.n_nuis, 0.5), np.clip(prob.age_x0(), 0.0, 1.0)
+    ]
     t0 = time.perf_counter()
     r0, _, preds0 = prob.evaluate(x0)
     cost0 = 0.5 * float(r0 @ r0)
@@ -468,6 +544,9 @@ def _fit(
     extra: dict[str, object] = {}
     if prob.n_nuis:
         extra["soc0"] = {e.name: prob.soc_of(i, x) for i, e in enumerate(prob.exps)}
+    if prob.n_age:
+        extra["ageing"] = _ageing_report(prob, x, J, r, opt)
+    if prob.n_nuis or prob.n_age:
         Q, _ = np.linalg.qr(J[:, p:])
         J = J[:, :p] - Q @ (Q.T @ J[:, :p])  # marginal information of the physical parameters
         x = x[:p]
@@ -490,6 +569,47 @@ def _fit(
         stage,
         extra,
     )
+
+
+def _ageing_report(
+    prob: _Problem, x: np.ndarray, J: np.ndarray, r: np.ndarray, opt: Options
+) -> dict[str, dict[str, dict[str, object]]]:
+    """Each file's ageing values, 95 % intervals (eq. 46 from the covariance of all parameters, the pseudo-inverse if
+    singular; ``ci95_scaled`` with s²) and bound flags: {file: {name: {...}}}."""
+    from scipy import stats as _st
+
+    assert prob.ageing is not None
+    n, q = J.shape
+    dof = n - q
+    s2 = float(r @ r / dof) if dof > 0 else float("nan")
+    tval = float(_st.t.ppf(0.975, dof)) if dof > 0 else float("nan")
+    norms = np.linalg.norm(J, axis=0)
+    norms[norms == 0] = 1.0
+    _, s, Vt = np.linalg.svd(J / norms, full_matrices=False)
+    keep = s > opt.rcond * s[0]
+    sig = np.sqrt(np.diag((Vt[keep].T / s[keep] ** 2) @ Vt[keep]) / norms**2)
+    out: dict[str, dict[str, dict[str, object]]] = {}
+    k = len(prob.ageing.names)
+    for g, label in enumerate(prob.files):
+        out[label] = {}
+        for j, name in enumerate(prob.ageing.names):
+            pos = len(prob.names) + prob.n_nuis + g * k + j
+            lo, hi = prob.ageing.bounds(name)
+            value = prob.ageing.denormalise(name, float(x[pos]))
+            half = tval * float(sig[pos]) * (hi - lo)
+
+            def ci(h: float, value: float = value, lo: float = lo, hi: float = hi) -> list[float] | None:
+                return [max(lo, value - h), min(hi, value + h)] if np.isfinite(h) else None
+
+            xb = float(x[pos])
+            out[label][name] = {
+                "value": value,
+                "ci95": ci(half),
+                "ci95_scaled": ci(half * np.sqrt(s2)),
+                "bounds": [lo, hi],
+                "at_bound": "lower" if xb < opt.bound_tol else "upper" if xb > 1 - opt.bound_tol else None,
+            }
+    return out
 
 
 @dataclass(frozen=True)

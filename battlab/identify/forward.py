@@ -30,6 +30,7 @@ class Output:
     sensitivities: np.ndarray | None
     ended_by: str | None
     T_surface: np.ndarray | None = None
+    T_core: np.ndarray | None = None
 
 
 class ForwardModel:
@@ -95,15 +96,65 @@ class ForwardModel:
         ambient: float = 298.15,
         T0: float | None = None,
         sensitivities: Sequence[str] = (),
+        start: tuple[float, float] | None = None,
+        capacity: float = 1.0,
     ) -> Output:
-        """Voltage and dV/dθ̄ for the named parameters under ``profile`` from rest at ``soc0``."""
+        """Voltage and dV/dθ̄ for the named parameters under ``profile`` from rest at ``soc0``.
+
+        Per-file ageing (:mod:`battlab.identify.ageing`): ``start`` (θ⁻, θ⁺) replaces the stoichiometries at
+        ``soc0``; ``capacity`` c scales the electrode area: the model runs at the current I/c (the same current
+        densities) and the contact resistance's drop is corrected from R_c I/c to R_c I."""
+        out = self._run(theta_bar, profile, soc0, ambient, T0, sensitivities, start, capacity)
+        return out if capacity == 1.0 else self._contact_corrected(out, theta_bar, profile, capacity, sensitivities)
+
+    def _contact_corrected(
+        self, out: Output, theta_bar: np.ndarray, profile: Profile, capacity: float, sensitivities: Sequence[str]
+    ) -> Output:
+        """V + R I (1/c − 1) with R = the cell's R_c plus the contact-resistance extension's R_c + dRc_dT (T₁ −
+        T_ref) (model sign: I positive = discharge); that extension's sensitivity columns get the same term."""
+        k = out.voltage.size
+        i_dis = to_model_current(profile.current)[:k] * (1.0 / capacity - 1.0)
+        r = np.full(k, float(self.cell["R_c"]))
+        dV = None if out.sensitivities is None else out.sensitivities.copy()
+        names = list(sensitivities)
+        if "contact_resistance" in self.cell.extensions:
+            th = dict(zip(self.names, map(float, theta_bar), strict=True))
+            spec_r = parameters.EXTENSION_SPECS["contact_resistance.R_c"]
+            spec_t = parameters.EXTENSION_SPECS["contact_resistance.dRc_dT"]
+            dT = (out.T_core if out.T_core is not None else np.full(k, float(self.cell["T_ref"]))) - float(
+                self.cell["T_ref"]
+            )
+            r += spec_r.denormalise(th[spec_r.qualified]) + spec_t.denormalise(th[spec_t.qualified]) * dT
+            for spec, factor in ((spec_r, 1.0), (spec_t, dT)):
+                if dV is not None and spec.qualified in names:
+                    dV[:, names.index(spec.qualified)] += i_dis * factor * (spec.upper - spec.lower)
+        return Output(out.voltage + r * i_dis, dV, out.ended_by, out.T_surface, out.T_core)
+
+    def _run(
+        self,
+        theta_bar: np.ndarray,
+        profile: Profile,
+        soc0: float,
+        ambient: float,
+        T0: float | None,
+        sensitivities: Sequence[str],
+        start: tuple[float, float] | None,
+        capacity: float,
+    ) -> Output:
         names = check_sensitivities(self.cell, sensitivities)
         theta_bar = np.asarray(theta_bar, float)
         stepper = self._native()
+        if capacity != 1.0:
+            profile = Profile(
+                profile.t, profile.current / capacity, id=profile.id, kind=profile.kind, soc0=profile.soc0
+            )
         if stepper is None:
             lim = (float(self.cell["V_min"]) - self.v_margin, float(self.cell["V_max"]) + self.v_margin)
+            cell = self.cell_at(theta_bar)
+            if start is not None:  # a window that is the start state at every SOC
+                cell = cell.with_values(sto_n_0=start[0], sto_n_100=start[0], sto_p_0=start[1], sto_p_100=start[1])
             res = simulate(
-                self.cell_at(theta_bar),
+                cell,
                 profile,
                 soc0=soc0,
                 ambient=ambient,
@@ -112,8 +163,11 @@ class ForwardModel:
                 T0=T0,
                 v_limits=lim,
             )
-            return Output(res.voltage, res.sensitivities, res.ended_by, res.T_surface)
+            return Output(res.voltage, res.sensitivities, res.ended_by, res.T_surface, res.T_core)
         from battlab.model import solver
+
+        if start is not None:
+            stepper = _StartAt(stepper, start)
 
         cell = self.cell
         m = self.v_margin
@@ -132,4 +186,26 @@ class ForwardModel:
             solver.Settings(adaptive=False),  # steps that do not move with θ̄: a cost smooth in θ̄
             limits,
         )
-        return Output(traj.voltage, traj.dV if names else None, traj.ended_by, traj.T2)
+        return Output(traj.voltage, traj.dV if names else None, traj.ended_by, traj.T2, traj.T1)
+
+
+class _View:
+    """An object that answers as ``target`` except for the attributes given."""
+
+    def __init__(self, target: object, **attrs: object) -> None:
+        self._target = target
+        self.__dict__.update(attrs)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._target, name)
+
+    def __getitem__(self, key: str) -> object:
+        return self._target[key]  # type: ignore[index]
+
+
+def _StartAt(stepper: object, start: tuple[float, float]) -> object:  # noqa: N802
+    """The compiled stepper with its model's cell answering ``stoichiometry(soc) = start`` (θ⁻, θ⁺): the run's initial
+    state (:func:`battlab.model.state.initial_state`) starts there; the compiled equations do not use the window."""
+    model = stepper.model  # type: ignore[attr-defined]
+    cell = _View(model.cell, stoichiometry=lambda soc: start)
+    return _View(stepper, model=_View(model, cell=cell))

@@ -211,6 +211,7 @@ def fit(
     output: str | Path | None = None,
     hold_radii: bool = True,
     noise: Any = None,
+    per_file_ageing: Sequence[str] | str = (),
 ) -> FitReport:
     """Identify the cell's parameters from logged data: equilibrium from an OCV test, then the dynamic
     parameters by weighted LM, group by group and cumulatively (stages from ``plan``, else ``params``; ``params``
@@ -237,7 +238,14 @@ def fit(
     in a stage raises :class:`StageFailed` naming it, with the finished stages (or the equilibrium fit) kept on disk.
     ``noise`` (a :class:`battlab.noise.NoiseModel` or a noise file): the model that weighs the residuals; without
     it, eq. 38 fitted to the repeated trials in the run logs, else the paper's (:mod:`battlab.identify.weights`);
-    ``summary["noise"]`` says which."""
+    ``summary["noise"]`` says which.
+
+    ``per_file_ageing`` (names among ``n_Li``, ``capacity``; :mod:`battlab.identify.ageing`): each dynamic data file
+    gets its own cyclable lithium and/or capacity, fitted in every stage and in the Arrhenius refits with the shared
+    parameters; ``summary["per_file_ageing"]`` (and the BPX's user-defined metadata) holds each file's values and
+    95 % intervals. The written cell is ONE cell at the mean of the files' values (one cell for every test date,
+    :func:`battlab.identify.ageing.aged_cell`); the value stages fit that cell."""
+    from battlab.identify import ageing as A
     from battlab.identify import fit as F
     from battlab.identify import runlog
     from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
@@ -249,6 +257,12 @@ def fit(
     if full_charge not in FULL_CHARGE:
         raise InputError(f"full charge {full_charge!r}: expected one of {', '.join(FULL_CHARGE)}")
     cell = cell if isinstance(cell, Cell) else Cell.load(cell)
+    age_names = A.parse_names(per_file_ageing) if per_file_ageing else ()
+    if age_names and len(data) < 2:
+        raise InputError(
+            "--per-file-ageing needs two or more data files (with one file its ageing is the cell's own: fit "
+            "without the option)"
+        )
     check_ambient_keys(data, ambient)
     plan_obj = Plan.load(plan) if plan is not None else None
     loaded, warned = load_all(data, fix_sign=fix_sign)
@@ -286,15 +300,41 @@ def fit(
         report.equilibrium, report.equilibrium_data = eq, d.name
     elif rated_capacity is not None:
         cell = cell.with_values(Q_nom=rated_capacity)
+    if age_names and not dyn:
+        raise InputError("--per-file-ageing: no dynamic data among the files (only the OCV test)")
     if dyn:
-        exps = [
-            e
+        pairs = [
+            (e, d.name)
             for d in dyn
             for e in runlog.experiments(
                 d, cell, plan=plan_obj, plan_name=str(plan), dt=dt, soc0=soc0, ambient=ambient_of(d, ambient)
             )
         ]
-        exps = unique_names(exps)
+        exps = unique_names([e for e, _ in pairs])
+        ageing = (
+            A.Ageing(age_names, {e.name: f for e, (_, f) in zip(exps, pairs, strict=True)}, cell.lithium_moles())
+            if age_names
+            else None
+        )
+        per_file: dict[str, Any] = {}  # file -> name -> {value, ci95, ...}: the latest fit of each file
+
+        def export(unaged: Cell) -> Cell:
+            """The written cell: ``unaged`` at the mean of the files' ageing values (without the option: itself)."""
+            if ageing is None or not per_file:
+                return unaged
+            mean = A.mean_state(per_file, ageing)
+            why = f"mean of the per-file ageing values of {len(per_file)} data files (battlab fit --per-file-ageing)"
+            exported = {"state": "mean of the files' values", **mean, "reference_n_Li": ageing.n_li_ref}
+            block = {"names": list(ageing.names), "files": copy.deepcopy(per_file), "exported": exported}
+            report.summary["per_file_ageing"] = block
+            report.extra["per_file_ageing"] = {
+                "files": {
+                    f: {n: {"value": v["value"], "ci95": v["ci95"]} for n, v in d.items()} for f, d in per_file.items()
+                },
+                "exported": {**mean, "reference_n_Li": ageing.n_li_ref},
+            }
+            return A.aged_cell(unaged, mean.get("n_Li", ageing.n_li_ref), mean.get("capacity", 1.0), why)
+
         exps, _, summary["noise"] = weigh(exps, noise)
         if not exps:
             raise InputError("the data hold only noise trials: nothing to fit")
@@ -321,6 +361,8 @@ def fit(
             report.cell = res.cell
             report.summary, report.extra = copy.deepcopy(base_summary), copy.deepcopy(base_extra)
             _summarise_dynamic(report.results, report.summary, report.extra, len(plan_stages))
+            per_file.update(res.extra.get("ageing", {}))
+            report.cell = export(res.cell)
             if output is not None:
                 written, kept = report.write(output), k
             if on_stage is not None:
@@ -342,6 +384,7 @@ def fit(
                     forward=fm,
                     progress=stage_done,
                     hold_radii=hold_radii,
+                    ageing=ageing,
                 )
         except F.StageError as exc:
             raise StageFailed(exc.stage, exc.total, exc.cause, report, written, kept) from exc.cause
@@ -349,8 +392,14 @@ def fit(
             from battlab.identify.arrhenius import fit_arrhenius
 
             names = [n for r in report.results for n in r.names] if report.results else []
-            arr = fit_arrhenius(report.cell, by_ambient, names, forward=fm, options=F.Options(max_nfev=max_iter))
-            report.cell = arr.cell
+            unaged = report.results[-1].cell if report.results else report.cell
+            if ageing is not None:  # the other ambients' files start where the stages left the files (the reference)
+                ageing = ageing.with_start({f: {n: v["value"] for n, v in d.items()} for f, d in per_file.items()})
+            arr = fit_arrhenius(
+                unaged, by_ambient, names, forward=fm, options=F.Options(max_nfev=max_iter), ageing=ageing
+            )
+            per_file.update(arr.ageing)
+            report.cell = export(arr.cell)
             report.summary["arrhenius"] = arr.report()
             report.extra["arrhenius"] = {"E_J_per_mol": arr.energies, "clipped": arr.clipped}
             for k, v in arr.energies.items():
@@ -387,11 +436,13 @@ def fit_stages(
     forward: Any = None,
     progress: Callable[[int, Any], None] | None = None,
     hold_radii: bool = True,
+    ageing: Any = None,
 ) -> list[Any]:
     """The cumulative group-wise fit of :func:`battlab.identify.fit.fit_groupwise` (stage k fits groups 1..k on
     the experiments of stages 1..k from where stage k − 1 ended), in the identifiable coordinates when
     ``hold_radii``: the R_s of an electrode whose R_s, D_s, k, R_f are all fitted is held at the stage's start
-    value (:mod:`battlab.identify.reduced`). Errors in stage k are raised as
+    value (:mod:`battlab.identify.reduced`). ``ageing`` (:class:`battlab.identify.ageing.Ageing`): per-file ageing
+    values, each stage starting from the last one's. Errors in stage k are raised as
     :class:`battlab.identify.fit.StageError` with the finished stages."""
     from battlab.identify import fit as F
     from battlab.identify import reduced
@@ -407,7 +458,10 @@ def fit_stages(
         exps += list(stg.experiments)
         fitted, held = reduced.split(names) if hold_radii else (list(names), [])
         try:
-            res = F.fit(cell, exps, fitted, options=options, forward=fm, start=current, stage=k)
+            res = F.fit(cell, exps, fitted, options=options, forward=fm, start=current, stage=k, ageing=ageing)
+            if ageing is not None:
+                values = res.extra.get("ageing", {})
+                ageing = ageing.with_start({f: {n: v["value"] for n, v in d.items()} for f, d in values.items()})
             if held:
                 res = replace(res, statistics=reduced.with_held(res.statistics, reduced.held_values(current, held)))
             if progress is not None:

@@ -1,0 +1,153 @@
+"""Ageing between test dates as explicit per-file parameters: each data file's own cyclable lithium and capacity.
+
+A cell tested over weeks ages between its tests (the Panasonic 18650PF of the shared data set loses 2.8 -> 2.3 Ah
+over its campaign). One set of values for every file then explains the lost capacity by the dynamics (an
+electrolyte that empties early, a diffusivity at its bound). With ``per-file ageing`` each data file gets
+
+* ``n_Li`` [mol]: its cyclable lithium (eq. 10). Every file starts at the open-circuit voltage the reference cell
+  has at the file's start SOC (``soc0 = 1``: the state the lab's full charge leaves, the same voltage on every
+  date), with its own lithium: the start stoichiometries (θ⁻, θ⁺) solve U⁺(θ⁺) − U⁻(θ⁻) = V₀ and
+  c H⁻ θ⁻ + c H⁺ θ⁺ = n_Li (:func:`start_state`). Bounds: the reference cell's n_Li ± :data:`N_LI_SPAN`.
+* ``capacity`` c [1]: the fraction of the electrode stack still active (loss of active material of both electrodes
+  with the lithium it holds), a factor on the electrode area A and so on both H± = ε_s L A c_max (eq. 11). An area
+  factor leaves every current density of the aged cell equal to that of the reference cell at the current I/c, so
+  the compiled model (whose A is a build constant) runs at I/c; the contact resistance's drop, which does not scale
+  with area, is corrected to R_c I (:meth:`battlab.identify.forward.ForwardModel.run`). The heat of that run is the
+  reference cell's at I/c, 1/c times the aged cell's (the temperature rise is overestimated by up to 1/c − 1; a
+  factor on ε_s instead would change the compiled model, 10–30 s per value). Bounds :data:`CAPACITY_BOUNDS`.
+
+Both are fitted with the shared parameters (one-sided finite-difference Jacobian columns, as the start-SOC
+nuisance); their values and 95 % intervals are reported per file. The exported cell (one cell) holds the mean of
+the per-file values over the dynamic data files (:func:`aged_cell`): one cell for every date of the campaign, each
+file's own state kept in the fit's summary and the BPX user-defined metadata.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import brentq
+
+from battlab.cell import Cell
+from protocols.errors import InputError
+
+#: the per-file ageing parameters
+NAMES = ("n_Li", "capacity")
+#: [1] n_Li within ± this fraction of the reference cell's
+N_LI_SPAN = 0.15
+#: [1] bounds of the capacity factor (of the reference cell's)
+CAPACITY_BOUNDS = (0.7, 1.05)
+
+
+def parse_names(text: str | Sequence[str]) -> tuple[str, ...]:
+    """``"n_Li,capacity"`` (or a sequence) as names; an unknown or repeated name is an :class:`InputError`."""
+    items = [s.strip() for s in (text.split(",") if isinstance(text, str) else text) if s.strip()]
+    if not items:
+        raise InputError(f"--per-file-ageing: no names given; expected some of {', '.join(NAMES)}")
+    for s in items:
+        if s not in NAMES:
+            raise InputError(f"--per-file-ageing: unknown name {s!r}; expected some of {', '.join(NAMES)}")
+    if len(set(items)) != len(items):
+        raise InputError(f"--per-file-ageing: a name is given twice in {','.join(items)}")
+    return tuple(n for n in NAMES if n in items)
+
+
+@dataclass(frozen=True)
+class Ageing:
+    """Which ageing parameters each data file gets, the file of each experiment (experiment name -> file label), the
+    reference cell's n_Li [mol] and the start values per file (label -> name -> value; missing: the reference's)."""
+
+    names: tuple[str, ...]
+    files: Mapping[str, str]
+    n_li_ref: float
+    start: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+
+    def bounds(self, name: str) -> tuple[float, float]:
+        if name == "n_Li":
+            return (1.0 - N_LI_SPAN) * self.n_li_ref, (1.0 + N_LI_SPAN) * self.n_li_ref
+        return CAPACITY_BOUNDS
+
+    def reference(self, name: str) -> float:
+        return self.n_li_ref if name == "n_Li" else 1.0
+
+    def normalise(self, name: str, value: float) -> float:
+        lo, hi = self.bounds(name)
+        return (value - lo) / (hi - lo)
+
+    def denormalise(self, name: str, x: float) -> float:
+        lo, hi = self.bounds(name)
+        return lo + x * (hi - lo)
+
+    def start_value(self, label: str, name: str) -> float:
+        return float(self.start.get(label, {}).get(name, self.reference(name)))
+
+    def with_start(self, values: Mapping[str, Mapping[str, float]]) -> Ageing:
+        """The same with these files' start values replaced (the others kept)."""
+        start = {k: dict(v) for k, v in self.start.items()}
+        for label, vals in values.items():
+            start.setdefault(label, {}).update({n: float(v) for n, v in vals.items()})
+        return Ageing(self.names, self.files, self.n_li_ref, start)
+
+    def state(self, label: str, values: Mapping[str, float]) -> tuple[float, float]:
+        """(n_Li [mol], capacity [1]) of a file from its fitted values (a name not fitted: the reference's)."""
+        n = float(values.get("n_Li", self.start_value(label, "n_Li")))
+        c = float(values.get("capacity", self.start_value(label, "capacity")))
+        return n, c
+
+
+def start_state(
+    cell: Cell, n_li: float, capacity: float, voltage: float, *, clamp: bool = False
+) -> tuple[float, float]:
+    """(θ⁻, θ⁺) at rest at the open-circuit ``voltage`` [V] with ``n_li`` [mol] of cyclable lithium in electrodes of
+    ``capacity`` times the cell's moles H± (eqs. 10, 11, 14). No such state: :class:`InputError`, or with ``clamp``
+    the end of the stoichiometry range nearest to that voltage (an electrode full or empty first)."""
+    hn, hp = capacity * cell.electrode_moles("n"), capacity * cell.electrode_moles("p")
+
+    def theta_p(tn: float) -> float:
+        return (n_li - hn * tn) / hp
+
+    def ocv(tn: float) -> float:
+        return float(cell.fn("U_p", theta_p(tn)) - cell.fn("U_n", tn))
+
+    lo = max(1e-6, (n_li - hp * (1 - 1e-6)) / hn)
+    hi = min(1 - 1e-6, (n_li - hp * 1e-6) / hn)
+    if lo >= hi:
+        raise InputError(f"n_Li = {n_li:.5g} mol does not fit electrodes of {capacity:.4g} times the cell's")
+    if clamp and voltage <= ocv(lo):
+        return float(lo), float(theta_p(lo))
+    if clamp and voltage >= ocv(hi):
+        return float(hi), float(theta_p(hi))
+    try:
+        tn = brentq(lambda t: ocv(t) - voltage, lo, hi, xtol=1e-13)
+    except ValueError:
+        raise InputError(
+            f"the OCV does not reach {voltage:.4f} V with n_Li = {n_li:.5g} mol and capacity {capacity:.4g}"
+        ) from None
+    return float(tn), float(theta_p(tn))
+
+
+def aged_cell(cell: Cell, n_li: float, capacity: float, why: str) -> Cell:
+    """``cell`` with ``n_li`` [mol] of cyclable lithium and its electrode area A times ``capacity``: SOC 0 and 1 at the
+    open-circuit voltages they have in ``cell`` (its stoichiometry window written, n_Li too if it has one), or where an
+    electrode fills or empties first when that voltage is out of reach (more lithium than the positive electrode
+    takes at V_min); ``why`` goes into the sources."""
+    values: dict[str, float] = {"A": capacity * float(cell["A"])}
+    if "n_Li" in cell.values:
+        values["n_Li"] = n_li
+    v0, v1 = float(cell.ocv(0.0)), float(cell.ocv(1.0))
+    n0, p0 = start_state(cell, n_li, capacity, v0, clamp=True)
+    n1, p1 = start_state(cell, n_li, capacity, v1, clamp=True)
+    values.update(sto_n_0=n0, sto_n_100=n1, sto_p_0=p0, sto_p_100=p1)
+    new = cell.with_values(**values)
+    return Cell(new.name, new.values, {**new.sources, **dict.fromkeys(values, why)}, new.description, new.extensions)
+
+
+def mean_state(per_file: Mapping[str, Mapping[str, Mapping[str, object]]], ageing: Ageing) -> dict[str, float]:
+    """The mean of the per-file values (``per_file[label][name]["value"]``) for each ageing name."""
+    out = {}
+    for n in ageing.names:
+        vals = [float(v[n]["value"]) for v in per_file.values() if n in v]  # type: ignore[arg-type]
+        out[n] = float(np.mean(vals)) if vals else ageing.reference(n)
+    return out
