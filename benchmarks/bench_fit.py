@@ -33,13 +33,12 @@ from battlab.identify.forward import ForwardModel
 from battlab.identify.selection import greedy_d_optimal, information
 from battlab.identify.validation import (
     cut_at_limit,
-    discharge_profiles,
     format_table,
     plot_validation,
     rmse_table,
+    validation_profiles,
 )
 from battlab.identify.virtual import noise_free, synthesize
-from protocols.drive_cycles import Cycle, drive_profile
 from protocols.library import Library
 
 
@@ -94,7 +93,7 @@ def main() -> None:
         + "; ".join(f"group {k + 1}: {[p.id for p in c]}" for k, c in enumerate(chosen))
     )
     clean = {p.id: noise_free(fm, truth, p, p.soc0) for c in chosen for p in c}
-    val_profiles = _validation_profiles(fm, truth, lib, used)
+    val_profiles = validation_profiles(fm, truth, lib, used)
     names_all = tuple(n for g in groups for n in g)
     if a.coverage_only:  # the final stage's estimator only, started at the truth
         _coverage(a, fm, nominal, truth, chosen, clean, names_all, truth, [])
@@ -229,23 +228,6 @@ def _plan(path: str, fm, truth, lib) -> tuple[list[tuple[str, ...]], list[list]]
         have |= set(ids)
         chosen.append([cut_at_limit(fm, truth, lib[i], lib[i].soc0) for i in ids])
     return groups, chosen
-
-
-def _validation_profiles(fm, truth, lib, used) -> list:
-    """Held-out profiles: 0.5C and 1C discharges, a sinusoid and a pulse train from the library that were not
-    selected, and the HWFET, US06 and WLTC class 3b drive cycles from SOC 0.6 (from 0.8 HWFET's
-    regenerative peaks reach V_max) (cut where the truth stops)."""
-    out = [(cut_at_limit(fm, truth, p, s), s) for p, s in discharge_profiles(truth)]
-    th = fm.theta_of(truth)
-    for kind in ("sine", "pulse"):
-        for p in list(lib)[7::13]:
-            if p.kind == kind and p.id not in used and fm.run(th, p, p.soc0).ended_by is None:
-                out.append((p, p.soc0))
-                break
-    for cyc in (Cycle.HWFET, Cycle.US06, Cycle.WLTC3B):
-        p = drive_profile(cyc, soc0=0.6, id=cyc.name)
-        out.append((cut_at_limit(fm, truth, p, 0.6), 0.6))
-    return out
 
 
 def _scored(st) -> list[tuple[str, bool]]:

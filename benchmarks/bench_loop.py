@@ -30,7 +30,10 @@ out: its k's truth sits on a bound).
 library is swept at the current estimate, group k (Table 9, cumulative information of groups 1..k) is designed
 there and run alone (its own plan, from a full charge), and all logs so far are fitted (stages 1..k, from the
 previous estimate). The final estimates of both are printed against the truth, with the mean |log10 error| over
-the point-identified parameters and the invariants.
+the point-identified parameters and the invariants, and both, with the start cell, are scored on the held-out
+validation profiles (:func:`battlab.identify.validation.validation_profiles`, bench_fit's: 0.5C and 1C
+discharges, a library sine and pulse train no design selected, HWFET, US06, WLTC3b from SOC 0.6): RMSE [mV]
+against the noise-free truth per profile.
 
     PYTHONPATH=$PWD python benchmarks/bench_loop.py --M 1 --max-iter 10
 """
@@ -347,10 +350,44 @@ def fit(
     return covered, err, secs
 
 
+def plan_ids(plan: Path) -> set[str]:
+    """The library ids of a plan's profiles (text)."""
+    from battlab.io.plan import Plan
+    from protocols.protocol import ProfileStep
+
+    steps = [st for st in Plan.load(plan).protocol.steps if isinstance(st, ProfileStep)]
+    return {str(st.profile.params.get("library_id", st.profile.id)) for st in steps}
+
+
+def validate(cells: dict[str, Path | str], used: set[str]) -> None:
+    """RMSE [mV] of each cell (a name or a BPX file) on the held-out validation profiles, none of ``used``,
+    against the noise-free truth, beside the noise level of each profile (bench_fit's table). Each cell runs on a
+    forward model of its own (a fit may change non-dynamic values, e.g. eps_s_p)."""
+    from battlab import Cell
+    from battlab.identify.forward import ForwardModel
+    from battlab.identify.validation import format_table, rmse_table, validation_profiles
+    from battlab.identify.virtual import synthesize
+    from protocols import Library
+
+    truth = Cell.load("nca18650-true")
+    fm = ForwardModel(Cell.load("nca18650"))
+    val = validation_profiles(fm, truth, Library.build(), used)
+    vexps = [synthesize(fm, truth, p, s, seed=99, name=str(p.id)) for p, s in val]
+    table: dict[str, dict[str, float]] = {}
+    for label, path in cells.items():
+        cell = Cell.load(str(path))
+        table.update(rmse_table(ForwardModel(cell), {label: cell}, vexps)[0])
+    noise = {e.name: 1e3 * float(np.sqrt(e.variance[0])) for e in vexps}
+    print("validation RMSE against the noise-free truth\n" + format_table({**table, "noise σ": noise}))
+    labels = list(table)
+    print("  mean RMSE [mV]: " + ", ".join(f"{k} {np.mean(list(table[k].values())):.2f}" for k in labels))
+
+
 def sequential(
     work: Path, ids: list[int], M: int, max_iter: int, seed: int, speed: float, noise: Path | None = None
-) -> float:
-    """The sequential design (see the module docstring); returns the final mean |log10 error|."""
+) -> tuple[float, Path, set[str]]:
+    """The sequential design (see the module docstring); returns the final mean |log10 error|, the final
+    estimate's BPX file and the library ids the designs selected."""
     import json
 
     from battlab import Cell
@@ -358,7 +395,7 @@ def sequential(
     from battlab.parameters import TABLE9_GROUPS
 
     lib_path = library(work)
-    start, logs, err = "nca18650", [], float("nan")
+    start, logs, err, used = "nca18650", [], float("nan"), set()
     for k in range(1, len(TABLE9_GROUPS) + 1):
         wk = work / f"seq{k}"
         wk.mkdir(parents=True, exist_ok=True)
@@ -368,11 +405,12 @@ def sequential(
         rep = dw.design(wk / "store.h5", wk / "plan.toml", M=M, groups_spec=str(wk / "groups.json"))
         d = rep.designs[k - 1]
         print(f"sequential group {k}: designed at {start} in {time.perf_counter() - t0:.0f} s: selected {d.selected}")
+        used |= plan_ids(rep.files.groups[k - 1])
         logs.append(run(wk, rep.files.groups[k - 1], seed, speed))
         log_quality(logs[-1])
         _, err, _ = fit(wk, logs, None, max_iter, start, noise)
         start = str(wk / "fit.bpx.json")
-    return err
+    return err, Path(start), used
 
 
 def main() -> None:
@@ -416,8 +454,11 @@ def main() -> None:
         noise = noise_calibration(work, a.noise_trials, a.noise_profiles, a.speed)
         print(f"noise calibration: {time.perf_counter() - t0:.0f} s")
     if a.sequential_only:
-        seq = sequential(work, [int(x) for x in a.ids.split(",")], a.M, a.max_iter, seeds[-1], a.speed, noise)
+        seq, seq_cell, used = sequential(
+            work, [int(x) for x in a.ids.split(",")], a.M, a.max_iter, seeds[-1], a.speed, noise
+        )
         print(f"mean |log10 error|: sequential {seq:.3f} (seed {seeds[-1]})")
+        validate({"nominal": "nca18650", "sequential": seq_cell}, used)
         return
     plan = design(work, [int(x) for x in a.ids.split(",")], a.M, a.groups or None, a.rest_before)
     if a.distinct:
@@ -452,8 +493,12 @@ def main() -> None:
             print(f"fit time: median {np.median(fit_s):.0f} s, max {max(fit_s):.0f} s")
     if a.sequential:
         ids = [int(x) for x in a.ids.split(",")]
-        seq = sequential(work, ids, a.M, a.max_iter, seeds[-1], a.speed, noise)
+        seq, seq_cell, used = sequential(work, ids, a.M, a.max_iter, seeds[-1], a.speed, noise)
         print(f"mean |log10 error|: one-shot {one_shot:.3f}, sequential {seq:.3f} (seed {seeds[-1]})")
+        cells: dict[str, Path | str] = {"nominal": "nca18650"}
+        if fit_s:  # the one-shot fit of the last seed that ran to a fit
+            cells["one-shot"] = work / "fit.bpx.json"
+        validate({**cells, "sequential": seq_cell}, used | plan_ids(plan))
 
 
 if __name__ == "__main__":

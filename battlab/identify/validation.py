@@ -8,7 +8,7 @@ capacity as in Table 12 (from full charge, 90 % of the cell's capacity between i
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +16,7 @@ import numpy as np
 from battlab.cell import Cell
 from battlab.identify.fit import Experiment
 from battlab.identify.forward import ForwardModel
+from protocols.drive_cycles import Cycle, drive_profile
 from protocols.profile import Profile
 
 
@@ -59,6 +60,27 @@ def cut_at_limit(forward: ForwardModel, truth: Cell, profile: Profile, soc0: flo
         kind=profile.kind,
         soc0=soc0,
     )
+
+
+def validation_profiles(
+    forward: ForwardModel, truth: Cell, library: Iterable[Profile], used: Iterable[object] = ()
+) -> list[tuple[Profile, float]]:
+    """The held-out validation set, (profile, start SOC) each: 0.5C and 1C discharges, a sinusoid and a pulse train
+    of ``library`` that are not in ``used`` (ids, compared as text), and the HWFET, US06 and WLTC class 3b drive
+    cycles from SOC 0.6 (from 0.8 HWFET's regenerative peaks reach V_max); each cut where the true cell stops."""
+    taken = {str(u) for u in used}
+    out = [(cut_at_limit(forward, truth, p, s), s) for p, s in discharge_profiles(truth)]
+    th = forward.theta_of(truth)
+    profiles = list(library)
+    for kind in ("sine", "pulse"):
+        for p in profiles[7::13]:
+            if p.kind == kind and str(p.id) not in taken and forward.run(th, p, p.soc0).ended_by is None:
+                out.append((p, p.soc0))
+                break
+    for cyc in (Cycle.HWFET, Cycle.US06, Cycle.WLTC3B):
+        p = drive_profile(cyc, soc0=0.6, id=cyc.name)
+        out.append((cut_at_limit(forward, truth, p, 0.6), 0.6))
+    return out
 
 
 def reference(e: Experiment) -> np.ndarray:
