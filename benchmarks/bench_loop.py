@@ -19,12 +19,12 @@
    1000); eq. 38 is fitted to the trials (``battlab fit``'s :mod:`battlab.identify.weights`), compared with the
    tester's own noise level per profile, and saved as ``noise.toml``, which weighs every fit (``--noise``).
 
-``--seeds N`` repeats run and fit with seeds 0..N-1 (one design) and prints the coverage over seeds: per
-parameter and invariant the seeds whose 95 % interval holds the truth (eq. 44 as fitted, and scaled by s²), and per
-run "covered k of 12": the 12 parameters whose truth lies inside its bounds (the six of Table 11 on a bound are
-left out, DESIGN.md § Virtual lab), six point-identified and R_s, D_s, R_f of each electrode with their
-set-identified (orbit) intervals; the invariants tau and rho of each electrode beside them (kappa = k/R_s is left
-out: its k's truth sits on a bound).
+``--seeds N`` repeats run and fit with seeds 0..N-1 (``--first-seed K``: K..K+N-1) (one design) and prints the
+coverage over seeds: per parameter and invariant the seeds whose 95 % interval holds the truth (eq. 44 as fitted,
+and scaled by s²), and per run "covered k of 12": the 12 parameters whose truth lies inside its bounds (the six of
+Table 11 on a bound are left out, DESIGN.md § Virtual lab), six point-identified and R_s, D_s, R_f of each electrode
+with their set-identified (orbit) intervals; the invariants tau and rho of each electrode beside them (kappa = k/R_s
+is left out: its k's truth sits on a bound).
 
 ``--sequential``: after the one-shot loop, the sequential design on the same truth and seed: for k = 1..4 the
 library is swept at the current estimate, group k (Table 9, cumulative information of groups 1..k) is designed
@@ -429,6 +429,7 @@ def main() -> None:
     )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--seeds", type=int, default=0, help="repeat run and fit for seeds 0..N-1 (coverage)")
+    ap.add_argument("--first-seed", type=int, default=0, help="with --seeds: seeds K..K+N-1 (a run split in parts)")
     ap.add_argument("--noise-trials", type=int, default=3, help="repeated trials of the noise calibration (0: none)")
     ap.add_argument("--noise-profiles", type=int, default=1, help="noise profiles per direction")
     ap.add_argument("--noise", default=None, help="a noise model file measured before (instead of the calibration)")
@@ -447,7 +448,7 @@ def main() -> None:
     work.mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("BATTLAB_HOME", str(work / "home"))
     print(f"work directory {work}")
-    seeds = list(range(a.seeds)) if a.seeds else [a.seed]
+    seeds = list(range(a.first_seed, a.first_seed + a.seeds)) if a.seeds else [a.seed]
     noise = Path(a.noise) if a.noise else None
     if a.noise_trials and noise is None:
         t0 = time.perf_counter()
