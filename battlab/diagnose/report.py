@@ -70,6 +70,10 @@ class DiagnosisReport:
             lines.append(
                 f"not testable here: {c['cause']} ({c['why']}); would tell: {c['kind']} profile, {c['experiment']}"
             )
+        for c in s.get("undetectable", []):
+            lines.append(
+                f"too small to see: {c['cause']} ({c['why']}); would show: {c['kind']} profile, {c['experiment']}"
+            )
         lines.append(f"({s['seconds']:.0f} s)")
         return "\n".join(lines)
 

@@ -15,6 +15,11 @@ model extension explains it, and whether that extension predicts data it was not
    batch-means (block) variance, robust to correlated model error. A cause passes when its p-value (Hotelling's
    T² against F, see :mod:`battlab.diagnose.score`) is below ``alpha`` / (number of causes tested): Bonferroni, so
    the false-alarm rate of the whole ranking is at most ``alpha`` when the blocks outlast the error's correlation.
+   Each cause is tested on the directions of those of its parameters the data would detect somewhere in their
+   search range (:func:`informed_columns`); the smallest detectable change of each parameter
+   (:func:`detectable_sizes`) is in the summary's ``detectable_size``, and a cause not seen whose typical size
+   (:data:`battlab.diagnose.directions.TYPICAL`) lies below it is listed as ``undetectable`` ("too small to see on
+   these data") with the experiment that would show it.
 5. Confirmation: the leading :data:`CONFIRM` passing causes' extension parameters (and those of passing causes
    indistinguishable from them, :func:`battlab.diagnose.score.indistinguishable`) are fitted on the training
    part together with the :data:`N_BASE` base parameters whose directions explain most of the residual (among
@@ -304,6 +309,69 @@ def _untestable(train: Sequence[Experiment], named: str | None, i_rest: float) -
     ]
 
 
+def detectable_sizes(
+    cause: str,
+    r: np.ndarray,
+    J: np.ndarray,
+    S: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+    p_threshold: float,
+    block_s: float,
+) -> dict[str, float]:
+    """Per extension parameter of ``cause`` (its name, not qualified): the smallest change from "off" [its unit]
+    these data detect at ``p_threshold`` (:func:`battlab.diagnose.score.detectable_size`, ``S`` in θ̄ per column in
+    catalog order; inf: the base parameters mimic it)."""
+    from battlab.diagnose.score import detectable_size
+
+    specs = parameters.EXTENSIONS[cause]
+    size = detectable_size(r, J, S, w, t, p_threshold, block_s=block_s)
+    return {p.name: float(z * (p.upper - p.lower)) for p, z in zip(specs, size, strict=True)}
+
+
+def informed_columns(cause: str, sizes: dict[str, float]) -> list[int]:
+    """The columns of ``cause``'s parameters (catalog order) that these data would detect somewhere in their search
+    range (smallest detectable change, :func:`detectable_sizes`, at most the range's width): the score test runs on
+    those only, as a direction no value in range could show adds a degree of freedom to the test but no power (at
+    one ambient the kinetics' activation energies need 10-100 × their range; over 25, 10 and 40 °C those of the
+    reaction rates still do, and the nine-direction thermal test missed a 64 %-visible case at p 0.006 against
+    0.0014). All columns when none is informed (the test then says so itself)."""
+    specs = parameters.EXTENSIONS[cause]
+    keep = [j for j, p in enumerate(specs) if sizes[p.name] <= p.upper - p.lower]
+    return keep or list(range(len(specs)))
+
+
+def _undetectable(
+    sizes: dict[str, dict[str, float]], skip: set[str], typical: dict[str, dict[str, float]]
+) -> list[dict[str, Any]]:
+    """Causes not seen whose typical size (:data:`battlab.diagnose.directions.TYPICAL`) is below the smallest these
+    data would detect, for every parameter with a typical size: "too small to see" is then all that "no cause" says
+    about them. Each with the sizes and the experiment that would show it."""
+    out = []
+    for cause, det in sizes.items():
+        typ = {n: v for n, v in typical.get(cause, {}).items() if n in det}
+        if cause in skip or not typ or any(abs(v) >= det[n] for n, v in typ.items()):
+            continue
+        units = {p.name: p.unit for p in parameters.EXTENSIONS[cause]}
+        below = ", ".join(
+            f"{n} below {det[n]:.3g} {units[n]} (typical {v:.3g})"
+            if np.isfinite(det[n])
+            else f"{n} (mimicked by the base)"
+            for n, v in typ.items()
+        )
+        out.append(
+            {
+                "cause": cause,
+                "why": f"too small to see on these data: {below} goes undetected",
+                "smallest_detectable": {n: det[n] for n in typ},
+                "typical": typ,
+                "kind": INFORMED_BY[cause][0],
+                "experiment": INFORMED_BY[cause][1],
+            }
+        )
+    return out
+
+
 def diagnose(
     data: Sequence[str | Path],
     cell: Cell | str,
@@ -317,12 +385,16 @@ def diagnose(
     alpha: float = ALPHA,
     max_iter: int = 20,
     on_step: Any = None,
+    also_fit: Sequence[str] = (),
 ) -> DiagnosisReport:
     """Diagnose ``cell`` on logged ``data`` (see the module docstring). ``held_out``: a path (or file name) among
     ``data``, or another file, to hold out; ``ambient`` [K] for data that do not log it; ``causes``: the catalog
-    keys to test (default :data:`battlab.diagnose.directions.DEFAULT_CAUSES`); ``on_step(text)``: progress."""
+    keys to test (default :data:`battlab.diagnose.directions.DEFAULT_CAUSES`); ``on_step(text)``: progress;
+    ``also_fit``: catalog causes whose extension is fitted on the same terms as a confirmation (same base
+    parameters, training data, optimiser) whatever the score tests say, their held-out RMSE against the same base
+    fit in the summary's ``also_fitted`` (not used in the decision: an outside check of what the data can show)."""
     from battlab.diagnose import residuals, score
-    from battlab.diagnose.directions import DEFAULT_CAUSES, extension_directions
+    from battlab.diagnose.directions import DEFAULT_CAUSES, TYPICAL, extension_directions
     from battlab.identify.experiments import experiments_from_data
     from battlab.identify.forward import ForwardModel
 
@@ -442,10 +514,14 @@ def diagnose(
     span = float(t[-1] - t[0])
     block_s = max(BLOCK_MIN_S, span / N_BLOCKS)
     tested = [k for k in keys if len(S_all[k]) == len(train)]
-    mimics = {k: _mimicked_by(J, np.concatenate(S_all[k]), w, base_names) for k in tested}
-    results = [score.score_test(k, r, J, np.concatenate(S_all[k]), w, t, block_s=block_s) for k in tested]
+    S_of = {k: np.concatenate(S_all[k]) for k in tested}
+    mimics = {k: _mimicked_by(J, S_of[k], w, base_names) for k in tested}
+    p_threshold = alpha / max(len(tested), 1)
+    sizes = {k: detectable_sizes(k, r, J, S_of[k], w, t, p_threshold, block_s) for k in tested}
+    results = [
+        score.score_test(k, r, J, S_of[k][:, informed_columns(k, sizes[k])], w, t, block_s=block_s) for k in tested
+    ]
     ranked = score.rank_causes(results)
-    p_threshold = alpha / max(len(ranked), 1)
     passing = [s for s in ranked if s.dof > 0 and s.p_value < p_threshold]
     twins = score.indistinguishable(ranked, w)
 
@@ -454,8 +530,8 @@ def diagnose(
     confirmations: list[Confirmation] = []
     cause: str | None = None
     start_rmse = _held_out_rmse(fm, base, parts)
+    relevant = refit_names(base, J, r_raw, w, base_names)
     if passing:
-        relevant = refit_names(base, J, r_raw, w, base_names)
         say(f"fitting the base model's {', '.join(relevant)} on the training part")
         base_fit = _confirm(base, None, relevant, train, parts, max_iter)
         for s in _candidates(passing, twins):
@@ -498,12 +574,33 @@ def diagnose(
         base_share,
     )
     untestable = _untestable(train, cause, 0.01 * float(base["Q_nom"]))
+    seen = {cause} | {s.cause for s in passing} | {c["cause"] for c in cannot_tell + untestable}
+    undetectable = _undetectable(sizes, seen, TYPICAL)
+    if undetectable:
+        verdict += "; too small to see on these data: " + ", ".join(c["cause"] for c in undetectable)
+    also: list[dict[str, Any]] = []
+    if also_fit:
+        ref = base_fit or _confirm(base, None, relevant, train, parts, max_iter)
+        done = {c.cause: c for c in confirmations}
+        for k in also_fit:
+            parameters.extension_parameters(k)
+            say(f"fitting {k} on the training part (also_fit)")
+            c = done.get(k) or _confirm(base, k, relevant, train, parts, max_iter)
+            also.append(
+                {
+                    **c.__dict__,
+                    "rmse_base_mV": ref.rmse_held_out_mV,
+                    "gain": 1.0 - c.rmse_held_out_mV / ref.rmse_held_out_mV,
+                }
+            )
     if cannot_tell:
         verdict += "; cannot tell " + ", ".join(c["cause"] for c in cannot_tell) + " on these data"
     summary: dict[str, Any] = {
         "cause": cause,
         "cannot_tell": cannot_tell,
         "untestable": untestable,
+        "undetectable": undetectable,
+        "detectable_size": sizes,
         "ranking": [
             {**row, "passes": bool(s.dof > 0 and s.p_value < p_threshold), "mimicked_by": mimics[s.cause]}
             for row, s in zip(score.summary(ranked), ranked, strict=True)
@@ -525,5 +622,7 @@ def diagnose(
         "confirmations": [c.__dict__ for c in ([base_fit] if base_fit else []) + confirmations],
         "warnings": warned,
     }
+    if also_fit:
+        summary["also_fitted"] = also
     summary["seconds"] = time.perf_counter() - t_start
     return DiagnosisReport(summary, analysis, ranked, confirmations, base_fit, cell.name, warned)

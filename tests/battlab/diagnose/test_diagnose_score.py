@@ -8,6 +8,7 @@ import pytest
 
 from battlab.diagnose.score import (
     calibrate,
+    detectable_size,
     indistinguishable,
     project_out,
     rank_causes,
@@ -117,3 +118,23 @@ def test_real_extension_directions_name_a_hidden_contact_resistance() -> None:
     results = [score_test(d.cause, y - d.voltage, d.J, d.S, w, t, variance="white") for d in dirs]  # white noise
     ranked = rank_causes(results)
     assert ranked[0].cause == "contact_resistance", summary(results)
+
+
+def test_the_detectable_size_is_detected_about_half_the_time_and_a_mimicked_column_never() -> None:
+    """An effect of the detectable size along a direction the base cannot mimic passes the test at that threshold
+    in somewhat under half of the noise draws (the size is where the noncentrality equals the critical value;
+    measured 23/60); twice the size nearly always (58/60); a column along the base directions has no detectable
+    size."""
+    rng = np.random.default_rng(5)
+    p_thr = 0.01 / 7
+    S2 = np.column_stack([S[:, 0], J[:, 2]])  # one free column, one the base mimics exactly
+    size = detectable_size(base_fit(rng.normal(size=N) * 1e-3), J, S2, W, T, p_thr, block_s=240.0)
+    assert np.isfinite(size[0]) and size[1] == np.inf
+    hits = {1.0: 0, 2.0: 0}
+    for _ in range(60):
+        noise = rng.normal(size=N) * 1e-3
+        for f in hits:
+            r = base_fit(noise + f * size[0] * S[:, 0])
+            hits[f] += score_test("x", r, J, S2[:, :1], W, T, block_s=240.0).p_value < p_thr
+    assert 0.25 <= hits[1.0] / 60 <= 0.75, hits
+    assert hits[2.0] / 60 >= 0.9, hits

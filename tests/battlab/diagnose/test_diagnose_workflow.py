@@ -78,6 +78,44 @@ def test_noise_only_names_no_cause(logs) -> None:
     }
 
 
+def test_no_cause_says_which_causes_are_too_small_to_see_and_from_what_size_they_would_show(logs) -> None:
+    """On 30 min of driving with noise only, a capacity fade and electrolyte slopes of typical size are far below
+    what the data would detect (measured: side current 73 mA against 1.5 mA typical, slopes 10-18 per 1000 mol/m³
+    against 0.4): the summary lists them as undetectable with the smallest detectable size and the experiment that
+    would show them; a current-sensor offset of typical size would be seen and is not listed. The contract keys
+    stay."""
+    from battlab.diagnose.directions import TYPICAL
+    from battlab.diagnose.workflow import diagnose
+
+    rep = diagnose([logs["null"]], "nca18650")
+    s = rep.summary
+    assert {"cause", "ranking", "extension_gain"} <= set(s) and s["cause"] is None
+    assert {"rmse_before_mV", "rmse_after_mV", "held_out"} <= set(s["extension_gain"])
+    small = {c["cause"]: c for c in s["undetectable"]}
+    assert {"capacity_fade", "electrolyte"} <= set(small), rep.text()
+    fade = small["capacity_fade"]
+    assert fade["kind"] == "pulse" and fade["experiment"]
+    assert fade["smallest_detectable"]["I_side"] > 10 * TYPICAL["capacity_fade"]["I_side"]
+    assert "too small to see: capacity_fade" in rep.text() and "below" in fade["why"]
+    assert "current_sensor" not in small
+    assert s["detectable_size"]["current_sensor"]["offset"] < TYPICAL["current_sensor"]["offset"]
+    listed = {c["cause"] for c in s["untestable"] + s["cannot_tell"]}
+    assert not listed & set(small)  # each cause under one heading
+
+
+@pytest.mark.slow
+def test_also_fit_fits_a_cause_that_did_not_pass_on_the_same_terms_without_changing_the_decision(logs) -> None:
+    from battlab.diagnose.workflow import diagnose
+
+    rep = diagnose([logs["null"]], "nca18650", also_fit=["equilibrium"])
+    s = rep.summary
+    assert s["cause"] is None and s["confirmations"] == [], rep.text()
+    (row,) = s["also_fitted"]
+    assert row["cause"] == "equilibrium" and len(row["names"]) == 3 + 3
+    assert row["gain"] == pytest.approx(1.0 - row["rmse_held_out_mV"] / row["rmse_base_mV"])
+    assert row["gain"] < 0.3  # noise only: the extension cannot win on held-out data
+
+
 def test_a_contact_resistance_is_mimicked_by_the_base_and_the_verdict_says_refit(logs) -> None:
     """A series resistance is what the base model's resistances already give: its direction is (nearly) in their
     span, no extension is named, and the verdict points at refitting the base parameters."""
