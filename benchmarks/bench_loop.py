@@ -423,7 +423,7 @@ def main() -> None:
     ap.add_argument("--ids", default=",".join(map(str, QUICK_LIBRARY_IDS)), help="library ids to sweep")
     ap.add_argument("--M", type=int, default=2, help="profiles per group")
     ap.add_argument("--groups", default="paper", help="'paper' (Table 9) or a groups JSON; '' for the ranking's")
-    ap.add_argument("--max-iter", type=int, default=20, help="evaluations per fit stage")
+    ap.add_argument("--max-iter", type=int, default=40, help="evaluations per fit stage (battlab fit's default)")
     ap.add_argument(
         "--speed", type=float, default=100.0, help="virtual clock speed (1000 on a loaded 2-core host: late samples)"
     )
