@@ -428,32 +428,47 @@ def _check_extension(cell: str, key: str, values: Mapping[str, Any]) -> dict[str
     return out
 
 
-def _window_from_lithium(cell: Cell) -> tuple[float, float, float, float]:
-    """θ± at V_max and V_min with θ⁺ = (n_Li − H⁻θ⁻)/H⁺ (eqs. 10, 15, 18, 20)."""
-    hn, hp, nli = cell.electrode_moles("n"), cell.electrode_moles("p"), float(cell["n_Li"])
+def rest_stoichiometries(
+    cell: Cell, n_li: float, voltage: float, *, capacity: float = 1.0, clamp: bool = False
+) -> tuple[float, float]:
+    """(θ⁻, θ⁺) at rest at the open-circuit ``voltage`` [V] with ``n_li`` [mol] of cyclable lithium in electrodes of
+    ``capacity`` times the cell's moles H±: U⁺(θ⁺) − U⁻(θ⁻) = V, H⁻θ⁻ + H⁺θ⁺ = n_Li (eqs. 10, 11, 14, 15). No such
+    state: :class:`InputError`, or with ``clamp`` the end of the stoichiometry range nearest to that voltage (an
+    electrode full or empty first)."""
+    hn, hp = capacity * cell.electrode_moles("n"), capacity * cell.electrode_moles("p")
 
     def theta_p(tn: float) -> float:
-        return (nli - hn * tn) / hp
+        return (n_li - hn * tn) / hp
 
     def ocv(tn: float) -> float:
         return float(cell.fn("U_p", theta_p(tn)) - cell.fn("U_n", tn))
 
     # θ⁻ range where both stoichiometries are within (0, 1)
-    lo = max(1e-6, (nli - hp * (1 - 1e-6)) / hn)
-    hi = min(1 - 1e-6, (nli - hp * 1e-6) / hn)
+    lo = max(1e-6, (n_li - hp * (1 - 1e-6)) / hn)
+    hi = min(1 - 1e-6, (n_li - hp * 1e-6) / hn)
     if lo >= hi:
-        raise InputError(f"cell {cell.name!r}: n_Li = {nli} mol does not fit the electrodes' capacities")
-    out = []
-    for v in (float(cell["V_min"]), float(cell["V_max"])):
-        try:
-            out.append(brentq(lambda t, v=v: ocv(t) - v, lo, hi, xtol=1e-14))
-        except ValueError:
-            raise InputError(
-                f"cell {cell.name!r}: the OCV does not reach {v} V for n_Li = {nli} mol "
-                f"(range {ocv(lo):.3f}–{ocv(hi):.3f} V)"
-            ) from None
-    n0, n1 = out
-    return n0, n1, theta_p(n0), theta_p(n1)
+        raise InputError(
+            f"cell {cell.name!r}: n_Li = {n_li:.5g} mol does not fit electrodes of {capacity:.4g} times its capacities"
+        )
+    if clamp and voltage <= ocv(lo):
+        return float(lo), float(theta_p(lo))
+    if clamp and voltage >= ocv(hi):
+        return float(hi), float(theta_p(hi))
+    try:
+        tn = brentq(lambda t: ocv(t) - voltage, lo, hi, xtol=1e-14)
+    except ValueError:
+        raise InputError(
+            f"cell {cell.name!r}: the OCV does not reach {voltage:.4f} V for n_Li = {n_li:.5g} mol and "
+            f"{capacity:.4g} times its capacities (range {ocv(lo):.3f}–{ocv(hi):.3f} V)"
+        ) from None
+    return float(tn), float(theta_p(tn))
+
+
+def _window_from_lithium(cell: Cell) -> tuple[float, float, float, float]:
+    """θ± at V_min and V_max from the cell's n_Li (eqs. 10, 15, 18, 20)."""
+    n0, p0 = rest_stoichiometries(cell, float(cell["n_Li"]), float(cell["V_min"]))
+    n1, p1 = rest_stoichiometries(cell, float(cell["n_Li"]), float(cell["V_max"]))
+    return n0, n1, p0, p1
 
 
 __all__ = ["Cell", "KEYS", "Key", "F", "R_GAS", "Expr", "Table"]

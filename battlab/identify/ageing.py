@@ -7,7 +7,8 @@ electrolyte that empties early, a diffusivity at its bound). With ``per-file age
 * ``n_Li`` [mol]: its cyclable lithium (eq. 10). Every file starts at the open-circuit voltage the reference cell
   has at the file's start SOC (``soc0 = 1``: the state the lab's full charge leaves, the same voltage on every
   date), with its own lithium: the start stoichiometries (θ⁻, θ⁺) solve U⁺(θ⁺) − U⁻(θ⁻) = V₀ and
-  c H⁻ θ⁻ + c H⁺ θ⁺ = n_Li (:func:`start_state`). Bounds: the reference cell's n_Li ± :data:`N_LI_SPAN`.
+  c H⁻ θ⁻ + c H⁺ θ⁺ = n_Li (:func:`battlab.cell.rest_stoichiometries`). Bounds: the reference cell's n_Li ±
+  :data:`N_LI_SPAN`.
 * ``capacity`` c [1]: the fraction of the electrode stack still active (loss of active material of both electrodes
   with the lithium it holds), a factor on the electrode area A and so on both H± = ε_s L A c_max (eq. 11). An area
   factor leaves every current density of the aged cell equal to that of the reference cell at the current I/c, so
@@ -28,9 +29,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import brentq
 
-from battlab.cell import Cell
+from battlab.cell import Cell, rest_stoichiometries
 from protocols.errors import InputError
 
 #: the per-file ageing parameters
@@ -97,37 +97,6 @@ class Ageing:
         return n, c
 
 
-def start_state(
-    cell: Cell, n_li: float, capacity: float, voltage: float, *, clamp: bool = False
-) -> tuple[float, float]:
-    """(θ⁻, θ⁺) at rest at the open-circuit ``voltage`` [V] with ``n_li`` [mol] of cyclable lithium in electrodes of
-    ``capacity`` times the cell's moles H± (eqs. 10, 11, 14). No such state: :class:`InputError`, or with ``clamp``
-    the end of the stoichiometry range nearest to that voltage (an electrode full or empty first)."""
-    hn, hp = capacity * cell.electrode_moles("n"), capacity * cell.electrode_moles("p")
-
-    def theta_p(tn: float) -> float:
-        return (n_li - hn * tn) / hp
-
-    def ocv(tn: float) -> float:
-        return float(cell.fn("U_p", theta_p(tn)) - cell.fn("U_n", tn))
-
-    lo = max(1e-6, (n_li - hp * (1 - 1e-6)) / hn)
-    hi = min(1 - 1e-6, (n_li - hp * 1e-6) / hn)
-    if lo >= hi:
-        raise InputError(f"n_Li = {n_li:.5g} mol does not fit electrodes of {capacity:.4g} times the cell's")
-    if clamp and voltage <= ocv(lo):
-        return float(lo), float(theta_p(lo))
-    if clamp and voltage >= ocv(hi):
-        return float(hi), float(theta_p(hi))
-    try:
-        tn = brentq(lambda t: ocv(t) - voltage, lo, hi, xtol=1e-13)
-    except ValueError:
-        raise InputError(
-            f"the OCV does not reach {voltage:.4f} V with n_Li = {n_li:.5g} mol and capacity {capacity:.4g}"
-        ) from None
-    return float(tn), float(theta_p(tn))
-
-
 def aged_cell(cell: Cell, n_li: float, capacity: float, why: str) -> Cell:
     """``cell`` with ``n_li`` [mol] of cyclable lithium and its electrode area A times ``capacity``: SOC 0 and 1 at the
     open-circuit voltages they have in ``cell`` (its stoichiometry window written, n_Li too if it has one), or where an
@@ -137,8 +106,8 @@ def aged_cell(cell: Cell, n_li: float, capacity: float, why: str) -> Cell:
     if "n_Li" in cell.values:
         values["n_Li"] = n_li
     v0, v1 = float(cell.ocv(0.0)), float(cell.ocv(1.0))
-    n0, p0 = start_state(cell, n_li, capacity, v0, clamp=True)
-    n1, p1 = start_state(cell, n_li, capacity, v1, clamp=True)
+    n0, p0 = rest_stoichiometries(cell, n_li, v0, capacity=capacity, clamp=True)
+    n1, p1 = rest_stoichiometries(cell, n_li, v1, capacity=capacity, clamp=True)
     values.update(sto_n_0=n0, sto_n_100=n1, sto_p_0=p0, sto_p_100=p1)
     new = cell.with_values(**values)
     return Cell(new.name, new.values, {**new.sources, **dict.fromkeys(values, why)}, new.description, new.extensions)

@@ -23,9 +23,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from battlab import parameters
-from battlab.cell import Cell
+from battlab.cell import Cell, rest_stoichiometries
 from battlab.identify import statistics
-from battlab.identify.ageing import Ageing, start_state
+from battlab.identify.ageing import Ageing
 from battlab.identify.forward import ForwardModel
 from battlab.identify.gauss_newton import GaussNewtonStep, bounded_gauss_newton
 from battlab.noise import NoiseModel
@@ -348,7 +348,7 @@ class _Problem:
             label = self.files[g]
             n_li, capacity = self.ageing.state(label, self.age_values(g, x))
             try:
-                start = start_state(self.fm.cell, n_li, capacity, float(self.fm.cell.ocv(soc0)))
+                start = rest_stoichiometries(self.fm.cell, n_li, float(self.fm.cell.ocv(soc0)), capacity=capacity)
             except InputError:  # no such state: a large but finite residual, as for nothing simulated
                 return np.full(n, e.voltage[0] + 1.0), np.zeros((n, len(self.names)))
         out = self.fm.run(

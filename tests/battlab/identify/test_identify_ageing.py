@@ -9,6 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 import battlab
+from battlab.cell import rest_stoichiometries
 from battlab.cli import main
 from battlab.identify import ageing as A
 from battlab.identify import fit as F
@@ -37,7 +38,7 @@ def two_dates():
     theta = cell.with_values(D_s_p=3e-14).theta_bar()
     clean = {}
     for f, (n, c) in truth.items():
-        start = A.start_state(cell, n, c, float(cell.ocv(1.0)))
+        start = rest_stoichiometries(cell, n, float(cell.ocv(1.0)), capacity=c)
         out = fm.run(theta, prof, 1.0, start=start, capacity=c)
         assert out.ended_by is None
         clean[f] = out.voltage
@@ -75,7 +76,9 @@ def test_the_aged_cell_starts_where_the_file_started() -> None:
     n, c = 0.85 * cell.lithium_moles(), 0.9
     aged = A.aged_cell(cell, n, c, "test")
     assert aged["A"] == pytest.approx(c * cell["A"])
-    np.testing.assert_allclose(aged.stoichiometry(1.0), A.start_state(cell, n, c, float(cell.ocv(1.0))), atol=1e-10)
+    np.testing.assert_allclose(
+        aged.stoichiometry(1.0), rest_stoichiometries(cell, n, float(cell.ocv(1.0)), capacity=c), atol=1e-10
+    )
     assert float(aged.ocv(0.0)) == pytest.approx(float(cell.ocv(0.0)), abs=1e-9)
     assert aged.lithium_moles() == pytest.approx(n, rel=1e-9)
     assert aged.capacity() < c * cell.capacity()  # lithium lost beyond the lost material's share
@@ -86,7 +89,7 @@ def test_an_aged_cell_whose_voltage_limits_are_out_of_reach_ends_where_an_electr
     cell = battlab.Cell.load("nca18650")
     n, c = cell.lithium_moles(), 0.85  # more lithium than the smaller electrodes take between 2.5 and 4.2 V
     with pytest.raises(InputError, match="does not reach"):
-        A.start_state(cell, n, c, float(cell.ocv(0.0)))
+        rest_stoichiometries(cell, n, float(cell.ocv(0.0)), capacity=c)
     aged = A.aged_cell(cell, n, c, "test")
     n0, n1, p0, p1 = aged.stoichiometry_window()
     assert max(p0, n1) == pytest.approx(1.0, abs=1e-5)  # the positive full at SOC 0 or the negative at SOC 1
@@ -105,7 +108,9 @@ def test_the_forward_model_of_a_file_matches_the_aged_cell() -> None:
     t = np.arange(0.0, 1200.0, 5.0)
     prof = Profile(t, np.where(t % 200 < 20, -2 * q, -q))
     fm = ForwardModel(cell, isothermal=True)
-    out = fm.run(cell.theta_bar(), prof, 1.0, start=A.start_state(cell, n, c, float(cell.ocv(1.0))), capacity=c)
+    out = fm.run(
+        cell.theta_bar(), prof, 1.0, start=rest_stoichiometries(cell, n, float(cell.ocv(1.0)), capacity=c), capacity=c
+    )
     ref = ForwardModel(aged, isothermal=True).run(aged.theta_bar(), prof, 1.0)
     np.testing.assert_allclose(out.voltage, ref.voltage, atol=1e-6)
 
