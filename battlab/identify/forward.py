@@ -166,9 +166,6 @@ class ForwardModel:
             return Output(res.voltage, res.sensitivities, res.ended_by, res.T_surface, res.T_core)
         from battlab.model import solver
 
-        if start is not None:
-            stepper = _StartAt(stepper, start)
-
         cell = self.cell
         m = self.v_margin
         limits = {"V_min": float(cell["V_min"]) - m, "V_max": float(cell["V_max"]) + m, "T_max": float(cell["T_max"])}
@@ -185,27 +182,6 @@ class ForwardModel:
             sel,
             solver.Settings(adaptive=False),  # steps that do not move with θ̄: a cost smooth in θ̄
             limits,
+            start,
         )
         return Output(traj.voltage, traj.dV if names else None, traj.ended_by, traj.T2, traj.T1)
-
-
-class _View:
-    """An object that answers as ``target`` except for the attributes given."""
-
-    def __init__(self, target: object, **attrs: object) -> None:
-        self._target = target
-        self.__dict__.update(attrs)
-
-    def __getattr__(self, name: str) -> object:
-        return getattr(self._target, name)
-
-    def __getitem__(self, key: str) -> object:
-        return self._target[key]  # type: ignore[index]
-
-
-def _StartAt(stepper: object, start: tuple[float, float]) -> object:  # noqa: N802
-    """The compiled stepper with its model's cell answering ``stoichiometry(soc) = start`` (θ⁻, θ⁺): the run's initial
-    state (:func:`battlab.model.state.initial_state`) starts there; the compiled equations do not use the window."""
-    model = stepper.model  # type: ignore[attr-defined]
-    cell = _View(model.cell, stoichiometry=lambda soc: start)
-    return _View(stepper, model=_View(model, cell=cell))

@@ -124,8 +124,10 @@ def run_native(
     sel: list[int],
     settings: Settings,
     limits: dict[str, float],
+    sto0: tuple[float, float] | None = None,
 ) -> Trajectory:
-    """As :func:`run`, on the compiled stepper: one C call for the whole profile (plus retries)."""
+    """As :func:`run`, on the compiled stepper: one C call for the whole profile (plus retries). ``sto0``: the start
+    stoichiometries (θ⁻, θ⁺) instead of the cell's at ``soc0`` (a cell whose lithium differs from its window's)."""
     t_start = time.perf_counter()
     model = stepper.model
     lay = model.layout
@@ -156,7 +158,7 @@ def run_native(
     outdV = np.full((n_samp, max(ns, 1)), np.nan)
     outdT2 = np.full((n_samp, max(ns, 1)), np.nan)
     th = np.asarray(theta_bar, float)
-    x0 = initial_state(model, soc0, th, T0)
+    x0 = initial_state(model, soc0, th, T0, sto0)
     y = np.concatenate([x0, guess_algebraic(model, x0, 0.0)])
     xp = x0.copy()
     S = np.zeros((nx, ns))  # C layout: row-major, S[i, j] = dx_i/dθ̄_sel[j]

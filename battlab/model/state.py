@@ -81,11 +81,14 @@ class Trajectory:
     steps: tuple[np.ndarray, ...] | None = None  # h, ω, I_dis, t_end of every step taken (Settings.replay)
 
 
-def initial_state(model: DFN, soc0: float, theta_bar: np.ndarray, T0: float) -> np.ndarray:
-    """Differential state at rest: uniform particle stoichiometries at soc0, c_e = c_e0, T = T0."""
+def initial_state(
+    model: DFN, soc0: float, theta_bar: np.ndarray, T0: float, sto0: tuple[float, float] | None = None
+) -> np.ndarray:
+    """Differential state at rest: uniform particle stoichiometries at soc0 (or ``sto0`` = (θ⁻, θ⁺)), c_e = c_e0,
+    T = T0."""
     lay = model.layout
     sl = lay.slices()
-    sto_n, sto_p = model.cell.stoichiometry(soc0)
+    sto_n, sto_p = model.cell.stoichiometry(soc0) if sto0 is None else sto0
     ce0 = parameters.SPECS["c_e0"].denormalise(float(theta_bar[parameters.NAMES.index("c_e0")]))
     x = np.zeros(lay.nx)
     x[sl["sn"]] = sto_n
