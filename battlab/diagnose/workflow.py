@@ -16,8 +16,8 @@ model extension explains it, and whether that extension predicts data it was not
    T² against F, see :mod:`battlab.diagnose.score`) is below ``alpha`` / (number of causes tested): Bonferroni, so
    the false-alarm rate of the whole ranking is at most ``alpha`` when the blocks outlast the error's correlation.
    Each cause is tested on the directions of those of its parameters the data would detect somewhere in their
-   search range (:func:`informed_columns`); the smallest detectable change of each parameter
-   (:func:`detectable_sizes`) is in the summary's ``detectable_size``, and a cause not seen whose typical size
+   search range; the smallest detectable change of each parameter (:mod:`battlab.diagnose.testability`) is in
+   the summary's ``detectable_size``, and a cause not seen whose typical size
    (:data:`battlab.diagnose.directions.TYPICAL`) lies below it is listed as ``undetectable`` ("too small to see on
    these data") with the experiment that would show it.
 5. Confirmation: the leading :data:`CONFIRM` passing causes' extension parameters (and those of passing causes
@@ -43,10 +43,11 @@ import numpy as np
 
 from battlab import parameters
 from battlab.cell import Cell
+from battlab.diagnose import testability
 from battlab.diagnose.report import Confirmation, DiagnosisReport
 from battlab.identify.data_files import Ambient, ambient_of, check_ambient_keys, load_all
 from battlab.identify.fit import Experiment
-from battlab.identify.informing import INFORMED_BY, one_ambient, rests_after_both_directions
+from battlab.identify.informing import INFORMED_BY
 from protocols.errors import InputError
 from protocols.profile import Profile
 
@@ -289,89 +290,6 @@ def _cannot_tell(
     return [{"cause": c, "why": w, "kind": INFORMED_BY[c][0], "experiment": INFORMED_BY[c][1]} for c, w in out.items()]
 
 
-def _untestable(train: Sequence[Experiment], named: str | None, i_rest: float) -> list[dict[str, Any]]:
-    """Causes this diagnosis cannot decide on whatever their size (so "no cause" says nothing about them), with the
-    experiment that would: the double layer, never score-tested (its voltage is not differentiable at C_dl = 0;
-    its effect at 1 s samples can be mV, as the benchmark's 0.2 F/m² case shows, but only a fit can weigh it); the
-    thermal extension's activation energies when every experiment has one ambient (they act only through a change
-    of temperature; the self-heating of a few kelvin is what the base scales absorb); hysteresis when the current
-    never changes direction."""
-    out = {}
-    out["double_layer"] = "not score-tested: its voltage is not differentiable at its off value C_dl = 0"
-    if one_ambient(train):
-        out["thermal"] = "one ambient temperature: activation energies are seen only through a change of temperature"
-    if not rests_after_both_directions(train, i_rest):
-        out["hysteresis"] = "no rest after a charge and after a discharge"
-    return [
-        {"cause": c, "why": w, "kind": INFORMED_BY[c][0], "experiment": INFORMED_BY[c][1]}
-        for c, w in out.items()
-        if c != named
-    ]
-
-
-def detectable_sizes(
-    cause: str,
-    r: np.ndarray,
-    J: np.ndarray,
-    S: np.ndarray,
-    w: np.ndarray,
-    t: np.ndarray,
-    p_threshold: float,
-    block_s: float,
-) -> dict[str, float]:
-    """Per extension parameter of ``cause`` (its name, not qualified): the smallest change from "off" [its unit]
-    these data detect at ``p_threshold`` (:func:`battlab.diagnose.score.detectable_size`, ``S`` in θ̄ per column in
-    catalog order; inf: the base parameters mimic it)."""
-    from battlab.diagnose.score import detectable_size
-
-    specs = parameters.EXTENSIONS[cause]
-    size = detectable_size(r, J, S, w, t, p_threshold, block_s=block_s)
-    return {p.name: float(z * (p.upper - p.lower)) for p, z in zip(specs, size, strict=True)}
-
-
-def informed_columns(cause: str, sizes: dict[str, float]) -> list[int]:
-    """The columns of ``cause``'s parameters (catalog order) that these data would detect somewhere in their search
-    range (smallest detectable change, :func:`detectable_sizes`, at most the range's width): the score test runs on
-    those only, as a direction no value in range could show adds a degree of freedom to the test but no power (at
-    one ambient the kinetics' activation energies need 10-100 × their range; over 25, 10 and 40 °C those of the
-    reaction rates still do, and the nine-direction thermal test missed a 64 %-visible case at p 0.006 against
-    0.0014). All columns when none is informed (the test then says so itself)."""
-    specs = parameters.EXTENSIONS[cause]
-    keep = [j for j, p in enumerate(specs) if sizes[p.name] <= p.upper - p.lower]
-    return keep or list(range(len(specs)))
-
-
-def _undetectable(
-    sizes: dict[str, dict[str, float]], skip: set[str], typical: dict[str, dict[str, float]]
-) -> list[dict[str, Any]]:
-    """Causes not seen whose typical size (:data:`battlab.diagnose.directions.TYPICAL`) is below the smallest these
-    data would detect, for every parameter with a typical size: "too small to see" is then all that "no cause" says
-    about them. Each with the sizes and the experiment that would show it."""
-    out = []
-    for cause, det in sizes.items():
-        typ = {n: v for n, v in typical.get(cause, {}).items() if n in det}
-        if cause in skip or not typ or any(abs(v) >= det[n] for n, v in typ.items()):
-            continue
-        units = {p.name: p.unit for p in parameters.EXTENSIONS[cause]}
-        below = ", ".join(
-            f"{n} below {det[n]:.3g} {units[n]} (typical {v:.3g})"
-            if np.isfinite(det[n])
-            else f"{n} (mimicked by the base)"
-            for n, v in typ.items()
-        )
-        out.append(
-            {
-                "cause": cause,
-                "why": f"too small to see on these data: {below} goes undetected",
-                "smallest_detectable": {n: det[n] for n in typ},
-                "typical": typ,
-                "kind": INFORMED_BY[cause][0],
-                "experiment": INFORMED_BY[cause][1],
-            }
-        )
-    return out
-
-
 def diagnose(
     data: Sequence[str | Path],
     cell: Cell | str,
@@ -517,9 +435,10 @@ def diagnose(
     S_of = {k: np.concatenate(S_all[k]) for k in tested}
     mimics = {k: _mimicked_by(J, S_of[k], w, base_names) for k in tested}
     p_threshold = alpha / max(len(tested), 1)
-    sizes = {k: detectable_sizes(k, r, J, S_of[k], w, t, p_threshold, block_s) for k in tested}
+    sizes = {k: testability.detectable_sizes(k, r, J, S_of[k], w, t, p_threshold, block_s) for k in tested}
     results = [
-        score.score_test(k, r, J, S_of[k][:, informed_columns(k, sizes[k])], w, t, block_s=block_s) for k in tested
+        score.score_test(k, r, J, S_of[k][:, testability.informed_columns(k, sizes[k])], w, t, block_s=block_s)
+        for k in tested
     ]
     ranked = score.rank_causes(results)
     passing = [s for s in ranked if s.dof > 0 and s.p_value < p_threshold]
@@ -573,9 +492,9 @@ def diagnose(
         s2_white,
         base_share,
     )
-    untestable = _untestable(train, cause, 0.01 * float(base["Q_nom"]))
+    untestable = testability.untestable(train, cause, 0.01 * float(base["Q_nom"]))
     seen = {cause} | {s.cause for s in passing} | {c["cause"] for c in cannot_tell + untestable}
-    undetectable = _undetectable(sizes, seen, TYPICAL)
+    undetectable = testability.undetectable(sizes, seen, TYPICAL)
     if undetectable:
         verdict += "; too small to see on these data: " + ", ".join(c["cause"] for c in undetectable)
     also: list[dict[str, Any]] = []

@@ -169,7 +169,7 @@ def test_causes_the_data_cannot_show_are_listed_with_the_experiment_that_would()
     """The double layer (never score-tested), activation energies at one ambient and hysteresis without a rest after
     a charge and after a discharge are "not testable here", each with a library profile kind; a named cause is never
     listed."""
-    from battlab.diagnose.workflow import _untestable
+    from battlab.diagnose.testability import untestable
     from battlab.identify.fit import Experiment
     from protocols.profile import Profile
 
@@ -179,16 +179,16 @@ def test_causes_the_data_cannot_show_are_listed_with_the_experiment_that_would()
     both = Profile(t, np.select([t < 200, t < 300, t < 500], [-2.7, 0.0, 1.0], 0.0))  # each direction, then a rest
     e = [Experiment("a", one_way, np.full(t.size, 3.6), 0.8, 1e-8, 298.15, None)]
     e_no_rests = [Experiment("a", no_rests, np.full(t.size, 3.6), 0.8, 1e-8, 298.15, None)]
-    assert "hysteresis" in {c["cause"] for c in _untestable(e_no_rests, None, 0.027)}
-    got = {c["cause"]: c for c in _untestable(e, None, 0.027)}
+    assert "hysteresis" in {c["cause"] for c in untestable(e_no_rests, None, 0.027)}
+    got = {c["cause"]: c for c in untestable(e, None, 0.027)}
     assert set(got) == {"double_layer", "thermal", "hysteresis"}
     assert all(c["kind"] in ("pulse", "sine", "drive") and c["experiment"] for c in got.values())
     two = [
         Experiment("a", both, np.full(t.size, 3.6), 0.8, 1e-8, 298.15, None),
         Experiment("b", both, np.full(t.size, 3.6), 0.8, 1e-8, 273.15, None),
     ]
-    assert {c["cause"] for c in _untestable(two, None, 0.027)} == {"double_layer"}
-    assert {c["cause"] for c in _untestable(e, "hysteresis", 0.027)} == {"double_layer", "thermal"}
+    assert {c["cause"] for c in untestable(two, None, 0.027)} == {"double_layer"}
+    assert {c["cause"] for c in untestable(e, "hysteresis", 0.027)} == {"double_layer", "thermal"}
 
 
 def _conf(cause: str, held_out_mV: float):  # noqa: ANN202
