@@ -10,6 +10,7 @@ They print nothing; progress goes to subscribers (:mod:`battlab.progress`) or ca
 """
 
 from battlab.design.workflow import design, groups, sweep
-from battlab.identify.workflow import fit, validate
+from battlab.identify.validate import validate
+from battlab.identify.workflow import fit
 
 __all__ = ["design", "fit", "groups", "sweep", "validate"]

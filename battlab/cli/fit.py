@@ -361,12 +361,12 @@ def validate(
     output: str,
 ) -> None:
     """Print the voltage RMSE of each CELL on each DATA file and save the figures (Figs. 7 and 9)."""
-    from battlab.identify import workflow
+    from battlab.identify.validate import validate
     from battlab.identify.validation import format_table
     from battlab.io.paths import check_output_path
 
     check_output_path(output, directory=True, create=True)
-    rep = workflow.validate(data, cells, soc0=soc0, ambient=parse_ambients(ambients), dt=dt, fix_sign=fix_sign)
+    rep = validate(data, cells, soc0=soc0, ambient=parse_ambients(ambients), dt=dt, fix_sign=fix_sign)
     for w in rep.warnings:
         click.echo(f"warning: {w}", err=True)
     click.echo(format_table(rep.table, rep.coverage))
