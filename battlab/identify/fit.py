@@ -583,11 +583,7 @@ def _ageing_report(
     dof = n - q
     s2 = float(r @ r / dof) if dof > 0 else float("nan")
     tval = float(_st.t.ppf(0.975, dof)) if dof > 0 else float("nan")
-    norms = np.linalg.norm(J, axis=0)
-    norms[norms == 0] = 1.0
-    _, s, Vt = np.linalg.svd(J / norms, full_matrices=False)
-    keep = s > opt.rcond * s[0]
-    sig = np.sqrt(np.diag((Vt[keep].T / s[keep] ** 2) @ Vt[keep]) / norms**2)
+    sig = np.sqrt(np.diag(statistics.pseudo_covariance(J, opt.rcond)[0]))
     out: dict[str, dict[str, dict[str, object]]] = {}
     k = len(prob.ageing.names)
     for g, label in enumerate(prob.files):

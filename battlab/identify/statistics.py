@@ -131,6 +131,17 @@ def _interval(name: str, th: float, half: float, side: str | None) -> tuple[floa
     return spec.denormalise(lo), spec.denormalise(hi)
 
 
+def pseudo_covariance(J: np.ndarray, rcond: float = RCOND) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(JᵀJ)⁻¹ = D⁻¹ V S⁻² Vᵀ D⁻¹ with D the column norms of J (a zero column is a null direction of its own; the
+    pseudo-inverse if singular: singular values of J D⁻¹ below ``rcond`` × the largest are dropped), with those
+    singular values S, the right singular vectors Vᵀ and which of them were kept."""
+    norms = np.linalg.norm(J, axis=0)
+    norms[norms == 0] = 1.0
+    _, s, Vt = np.linalg.svd(J / norms, full_matrices=False)
+    keep = s > rcond * s[0] if s.size else np.zeros(0, bool)
+    return (Vt[keep].T / s[keep] ** 2) @ Vt[keep] / np.outer(norms, norms), s, Vt, keep
+
+
 def compute(
     names: Sequence[str],
     theta_bar: np.ndarray,
@@ -165,16 +176,11 @@ def compute(
     # when its true value lies inside: measured 86 % coverage instead of 95 % on the virtual truth)
     if not np.all(np.isfinite(J)):
         return invalid("the Jacobian has non-finite entries")
-    norms = np.linalg.norm(J, axis=0)
-    dead = [nm for nm, z in zip(names, norms == 0, strict=True) if z]
-    norms[norms == 0] = 1.0  # a zero column is a null direction of its own
-    _, s, Vt = np.linalg.svd(J / norms, full_matrices=False)
+    dead = [nm for nm, z in zip(names, np.linalg.norm(J, axis=0) == 0, strict=True) if z]
+    cov_all, s, Vt, keep = pseudo_covariance(J, rcond)
     cond = (float(s[0] / s[-1]) if s[-1] > 0 else float("inf")) if s.size else float("nan")
-    keep = s > rcond * s[0] if s.size else np.zeros(0, bool)
     null = Vt[~keep]
     ok = ~(np.linalg.norm(null, axis=0) > IDENT_TOL) if null.size else np.ones(p, bool)
-    # (JᵀJ)⁻¹ = D⁻¹ V S⁻² Vᵀ D⁻¹ with D = diag(norms) (the pseudo-inverse if singular)
-    cov_all = (Vt[keep].T / s[keep] ** 2) @ Vt[keep] / np.outer(norms, norms)
     sig = np.sqrt(np.where(ok, np.diag(cov_all), np.nan))
     corr = correlation(cov_all)
     cov = cov_all.copy()
