@@ -92,11 +92,13 @@ EQUILIBRIUM_TRUTH: dict[str, float] = {"eps_s_n": 0.5438895, "eps_s_p": 0.666364
 @dataclass(frozen=True)
 class ExtensionParameter(ParameterSpec):
     """A parameter of a model extension: ``off`` is the value at which the extension is the base model exactly
-    (its nominal and truth), ``citation`` the model it comes from. Always normalised linearly (``off`` may be 0)."""
+    (its nominal and truth), ``citation`` the model it comes from; ``shapes``: it only shapes the effect (a rate or
+    exponent), so it has none while the sizes are at ``off``. Always normalised linearly (``off`` may be 0)."""
 
     extension: str = ""
     off: float = 0.0
     citation: str = ""
+    shapes: bool = False
 
     @property
     def qualified(self) -> str:
@@ -104,8 +106,10 @@ class ExtensionParameter(ParameterSpec):
         return f"{self.extension}.{self.name}"
 
 
-def _ext(key: str, name: str, unit: str, lower: float, upper: float, off: float, what: str, cite: str):
-    return ExtensionParameter(name, name, unit, lower, upper, off, off, _N, what, key, off, cite)
+def _ext(
+    key: str, name: str, unit: str, lower: float, upper: float, off: float, what: str, cite: str, shapes: bool = False
+) -> ExtensionParameter:
+    return ExtensionParameter(name, name, unit, lower, upper, off, off, _N, what, key, off, cite, shapes)
 
 
 _GUO = "M. Guo, G. Sikha, R. E. White, J. Electrochem. Soc. 158 (2011) A122 (contact resistance in a P2D model)"
@@ -116,7 +120,10 @@ _AXEN = (
 )
 _ZHANG = "Arrhenius activation energies as in Q. Zhang et al., J. Power Sources 270 (2014) 367 (the cell's own values)"
 _LIN = "two-state lumped thermal model: X. Lin et al., J. Power Sources 257 (2014) 1 (heat capacities, heat transfer)"
-_SEI = "SEI growth at a constant rate (cf. PyBaMM's SEI submodels; Safari et al., J. Electrochem. Soc. 156 (2009) A145)"
+_SEI = (
+    "SEI growth, reaction limited: PyBaMM's 'SEI': 'reaction limited (asymmetric)' without film resistance (Marquis, "
+    "DPhil thesis, Oxford 2020, eq. 5.92; Safari et al., J. Electrochem. Soc. 156 (2009) A145)"
+)
 _LAM = "loss of active material at a constant rate (cf. PyBaMM's 'loss of active material'; Reniers et al. 2019)"
 _VR = (
     "concentration dependence of LiPF6 electrolytes: L. O. Valoen, J. N. Reimers, J. Electrochem. Soc. 152 (2005) A882"
@@ -155,16 +162,47 @@ EXTENSIONS: dict[str, tuple[ExtensionParameter, ...]] = {
     ),
     "hysteresis": (
         _ext("hysteresis", "M_n", "V", 0.0, 0.05, 0.0, "negative OCP hysteresis half-width", _AXEN),
-        _ext("hysteresis", "gamma_n", "1", 1.0, 200.0, 50.0, "negative hysteresis decay rate per stoichiometry", _AXEN),
+        _ext(
+            "hysteresis",
+            "gamma_n",
+            "1",
+            1.0,
+            200.0,
+            50.0,
+            "negative hysteresis decay rate per stoichiometry",
+            _AXEN,
+            True,
+        ),
         _ext("hysteresis", "M_p", "V", 0.0, 0.05, 0.0, "positive OCP hysteresis half-width", _AXEN),
-        _ext("hysteresis", "gamma_p", "1", 1.0, 200.0, 50.0, "positive hysteresis decay rate per stoichiometry", _AXEN),
+        _ext(
+            "hysteresis",
+            "gamma_p",
+            "1",
+            1.0,
+            200.0,
+            50.0,
+            "positive hysteresis decay rate per stoichiometry",
+            _AXEN,
+            True,
+        ),
     ),
     "double_layer": (
         _ext("double_layer", "C_dl_n", "F/m2", 0.0, 2.0, 0.0, "negative double-layer capacitance", _DL),
         _ext("double_layer", "C_dl_p", "F/m2", 0.0, 2.0, 0.0, "positive double-layer capacitance", _DL),
     ),
     "capacity_fade": (
-        _ext("capacity_fade", "I_side", "A", 0.0, 0.01, 0.0, "lithium-consuming side-reaction current", _SEI),
+        _ext("capacity_fade", "I_side", "A", 0.0, 1.0, 0.0, "lithium-consuming side-reaction current at 0.1 V", _SEI),
+        _ext(
+            "capacity_fade",
+            "alpha_side",
+            "1",
+            0.0,
+            1.0,
+            0.0,
+            "side reaction's cathodic transfer coefficient",
+            _SEI,
+            True,
+        ),
         _ext("capacity_fade", "lam_n", "1/h", 0.0, 0.01, 0.0, "negative active-material loss rate", _LAM),
         _ext("capacity_fade", "lam_p", "1/h", 0.0, 0.01, 0.0, "positive active-material loss rate", _LAM),
     ),

@@ -147,7 +147,7 @@ CASES: dict[str, Case] = {
         Case(
             "capacity_fade",
             "capacity_fade",
-            "reaction-limited SEI, exchange current density 3e-4 A/m2 (lithium lost: see the benchmark's output)",
+            "reaction-limited SEI, j0 3e-4 A/m2 (1.0 Ah of lithium lost in 50 min, 8 % of the cell)",
             {"SEI": "reaction limited", "SEI film resistance": "none"},
             lambda pv: {**SEI, "SEI reaction exchange current density [A.m-2]": 3e-4},
         ),
@@ -240,7 +240,9 @@ def solve(case: Case, prof: Any, soc0: float = SOC0, ambient: float = AMBIENT_K)
     q_pb = np.asarray(sol["Discharge capacity [A.h]"](q))
     lost = 0.0
     if "SEI" in case.options:
-        lost = float(sol["Loss of capacity to negative SEI [A.h]"](q)[-1])
+        # PyBaMM's loss variables are per electrode pair: the cell's is the number of pairs in parallel times it
+        pairs = float(pv["Number of electrodes connected in parallel to make a cell"])
+        lost = pairs * float(sol["Loss of capacity to negative SEI [A.h]"](q)[-1])
     return Truth(
         t,
         np.asarray(sol["Voltage [V]"](q)),

@@ -19,6 +19,7 @@ import casadi as ca
 import numpy as np
 
 from battlab import parameters
+from battlab.cell import R_GAS, F
 from protocols.errors import InputError
 
 if TYPE_CHECKING:
@@ -196,13 +197,25 @@ class Thermal(Extension):
 
 @dataclass(frozen=True)
 class CapacityFade(Extension):
-    """Ageing during a test. A lithium-consuming side reaction in the negative electrode (SEI growth at a constant
-    rate): I_side [A] in total, uniform, cathodic; it carries charge and takes Li⁺ from the electrolyte but not
-    lithium from the particles, so the cell loses cyclable lithium at I_side/F (and self-discharges at rest). Loss
-    of active material at a constant rate per electrode: a state f_e (the fraction left, from 1) with
-    df_e/dt = −lam_e/3600 and a_s = f_e · 3 ε_s/R_s (the lost material takes its lithium with it)."""
+    """Ageing during a test. A lithium-consuming side reaction in the negative electrode (SEI growth, reaction
+    limited, Tafel kinetics): per volume a_s j_side [A m⁻³], cathodic, with
+
+        j_side = −I_side / (a_s⁰ A L⁻) · exp(−α_side F / (R T) (φ_s − φ_e − U_ref)),   U_ref = 0.1 V,
+
+    so I_side [A] is the total side current while the surface potential difference φ_s − φ_e is at U_ref (graphite
+    near half lithiated) and α_side = 0 makes it a constant rate. It is PyBaMM's reaction-limited SEI
+    (``"SEI": "reaction limited (asymmetric)"``, no film resistance, growth activation energy 0) with
+    j0_sei = I_side / (a_s⁰ A L⁻) · exp(−α_side F / (R T_ref) (U_sei − U_ref)). The side reaction takes Li⁺ from
+    the electrolyte and its electrons through the solid: in the charge balance (A9–A16) the particles' intercalation
+    current falls short of the cell's by the side current, so cyclable lithium is lost at ∫ a_s j_side dV / F (and
+    the cell self-discharges at rest, a mixed potential). Loss of active material at a constant rate per electrode:
+    a state f_e (the fraction left, from 1) with df_e/dt = −lam_e/3600 and a_s = f_e · 3 ε_s/R_s (PyBaMM's
+    "current-driven" loss of active material at a constant rate: the lost material takes its lithium with it, the
+    side reaction shrinks with the surface)."""
 
     key: ClassVar[str] = "capacity_fade"
+    #: the surface potential difference [V] at which I_side is the side current
+    U_ref: ClassVar[float] = 0.1
 
     def n_states(self, mesh: Mesh) -> int:
         return 2
@@ -213,7 +226,11 @@ class CapacityFade(Extension):
     def side_current(self, c: Context, e: str) -> ca.SX | None:
         if e != "n":
             return None
-        return -self.p(c, "I_side") / (float(c.cell["A"]) * c.L["n"])
+        n = c.nreg["n"]
+        dphi = c.y[c.sl["phis_n"]] - c.phie[:n]
+        tafel = ca.exp(-self.p(c, "alpha_side") * F / (R_GAS * c.T1) * (dphi - self.U_ref))
+        f_n = c.y[c.sl[self.key]][0]
+        return -self.p(c, "I_side") / (float(c.cell["A"]) * c.L["n"]) * f_n * tafel
 
     def surface_area(self, c: Context, e: str, a: ca.SX) -> ca.SX:
         f = c.y[c.sl[self.key]]

@@ -29,7 +29,7 @@ ON = {
     "current_sensor": {"offset": 0.02, "gain": 0.01},
     "thermal": {"dE_D_s_n": 5000.0, "dE_k_p": -8000.0, "dE_kappa": 3000.0, "h2a_scale": 1.5, "dUdT_offset": 1e-4},
     "double_layer": {"C_dl_n": 0.2, "C_dl_p": 0.3},
-    "capacity_fade": {"I_side": 0.005, "lam_n": 0.008, "lam_p": 0.004},
+    "capacity_fade": {"I_side": 0.005, "alpha_side": 0.5, "lam_n": 0.008, "lam_p": 0.004},
     "equilibrium": {"d_sto_n": -0.005, "d_sto_p": 0.005, "dU": 0.003},
     "electrolyte": {"De_slope": 0.3, "kappa_slope": -0.4, "dlnf_slope": 0.5},
     "hysteresis": {"M_n": 0.01, "gamma_n": 30.0, "M_p": 0.005, "gamma_p": 80.0},
@@ -83,7 +83,7 @@ def test_extension_sensitivities_match_finite_differences(nca: Cell, key: str, w
     cell = nca.with_extension(key, **(ON[key] if where == "on" else {}))
     names = tuple(p.qualified for p in parameters.EXTENSIONS[key]) + ("R_s_n", "k_p")
     # at "off", a parameter that only shapes the effect (not its size) has none
-    dormant = tuple(p.qualified for p in parameters.EXTENSIONS[key] if where == "off" and p.off != 0.0)
+    dormant = tuple(p.qualified for p in parameters.EXTENSIONS[key] if where == "off" and p.shapes)
     errors = fd_errors(cell, pulses(), 0.6, names, dormant)
     bad = {k: f"{v:.2e}" for k, v in errors.items() if not v <= FD_RTOL}
     assert not bad, f"{key} ({where}): sensitivities off finite differences: {bad}"
