@@ -221,7 +221,7 @@ def truth_residuals(log: Path, noise: Path | None) -> None:
     coefficients and by the noise model ``noise``."""
     from battlab import Cell, parameters
     from battlab.identify import runlog
-    from battlab.identify.fit import variance_of
+    from battlab.identify.experiments import variance_of
     from battlab.identify.forward import ForwardModel
     from battlab.io.data import load_data
     from battlab.noise import NoiseModel, load

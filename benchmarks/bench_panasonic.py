@@ -26,7 +26,7 @@ import numpy as np
 import battlab
 from battlab.identify import fit as F
 from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
-from battlab.identify.experiments import experiments_from_data
+from battlab.identify.experiments import Experiment, experiments_from_data
 from battlab.identify.forward import ForwardModel
 from battlab.identify.validation import predict
 from battlab.io.data import load_data
@@ -42,16 +42,16 @@ def _load(name: str):
         return load_data(DATA / f"25degC_{name}.mat")
 
 
-def _until_90(e: F.Experiment, total_ah: float) -> F.Experiment:
+def _until_90(e: Experiment, total_ah: float) -> Experiment:
     """``e`` with its mask limited to the samples before 90 % of ``total_ah`` has been discharged (Table 12's
     convention; the end of discharge, where the cell's usable capacity at these currents and its ageing decide
     the voltage, is scored separately)."""
     dq = -np.concatenate([[0.0], np.cumsum(e.profile.current[:-1] * np.diff(e.profile.t))]) / 3600.0
     mask = e.mask & (dq <= 0.9 * total_ah)
-    return F.Experiment(e.name, e.profile, e.voltage, e.soc0, e.variance, e.ambient, e.T0, mask)
+    return Experiment(e.name, e.profile, e.voltage, e.soc0, e.variance, e.ambient, e.T0, mask)
 
 
-def _ah(e: F.Experiment) -> float:
+def _ah(e: Experiment) -> float:
     return float(-np.sum(e.profile.current[:-1] * np.diff(e.profile.t)) / 3600.0)
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from battlab.cell import Cell
-from battlab.identify.fit import Experiment
+from battlab.identify.experiments import Experiment
 from battlab.io.checks import DataWarning
 from battlab.io.data import LoggedData, load_data
 from battlab.noise import NoiseModel

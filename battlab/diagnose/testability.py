@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from battlab import parameters
-from battlab.identify.fit import Experiment
+from battlab.identify.experiments import Experiment
 from battlab.identify.informing import INFORMED_BY, one_ambient, rests_after_both_directions
 
 

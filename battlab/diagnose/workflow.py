@@ -46,7 +46,7 @@ from battlab.cell import Cell
 from battlab.diagnose import testability
 from battlab.diagnose.report import Confirmation, DiagnosisReport
 from battlab.identify.data_files import Ambient, ambient_of, check_ambient_keys, load_all
-from battlab.identify.fit import Experiment
+from battlab.identify.experiments import Experiment
 from battlab.identify.informing import INFORMED_BY
 from protocols.errors import InputError
 from protocols.profile import Profile
@@ -148,7 +148,7 @@ def _measured_noise(e: Experiment, cell: Cell) -> Experiment:
     from dataclasses import replace
 
     from battlab.diagnose.residuals import measured_noise_variance
-    from battlab.identify.fit import QUANTUM
+    from battlab.identify.experiments import QUANTUM
 
     var = measured_noise_variance(e.voltage, e.profile.current, 0.01 * float(cell["Q_nom"]))
     return replace(e, variance=max(var, QUANTUM**2 / 12.0)) if np.isfinite(var) else e

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from battlab.cell import Cell
-from battlab.identify.fit import Experiment
+from battlab.identify.experiments import Experiment
 from battlab.identify.forward import ForwardModel
 from battlab.identify.virtual import synthesize
 from battlab.noise import NoiseModel

@@ -1,4 +1,5 @@
-"""Logged data → fit experiments: split at gaps, resample to a uniform grid, start SOC, ambient, weights.
+"""The fit's :class:`Experiment` (a profile, its measured voltage and weights) and logged data → experiments: split
+at gaps, resample to a uniform grid, start SOC, ambient, weights.
 
 * Segments: the data are cut where the time stamps jump by more than ``max_gap`` (the Panasonic HPPC file logs
   only the pulses, not the discharges between them); each segment is one experiment.
@@ -11,7 +12,7 @@
   (``Net Capacity / Ah`` if logged, else ∫I dt) divided by the cell's capacity.
 * Ambient: the given ``ambient``, else the mean chamber temperature, else an error (never a guess); T0: the
   surface temperature at the segment's start.
-* Weights: Q from the noise model (eqs. 37–40) plus quantisation (:func:`battlab.identify.fit.variance_of`).
+* Weights: Q from the noise model (eqs. 37–40) plus quantisation (:func:`variance_of`).
 * Data and cell must match (:func:`check_cell`): voltages more than ``V_TOL`` outside the cell's window, or a rest
   voltage outside its OCV range, are an error naming the samples; more charge passed than the cell holds is a
   warning.
@@ -20,16 +21,82 @@
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
 from battlab.cell import Cell
-from battlab.identify.fit import Experiment, variance_of
 from battlab.io.checks import DataWarning, ranges
 from battlab.io.data import NET_CAPACITY, STEP, SURFACE, LoggedData
 from battlab.noise import NoiseModel
 from protocols.errors import InputError
 from protocols.profile import Profile
+
+#: Voltage quantisation of the tester [V]; its variance Δ²/12 is added to the noise model's Q.
+QUANTUM = 1e-4
+
+
+@dataclass(frozen=True, eq=False)
+class Experiment:
+    """One identification (or validation) experiment: the applied profile and the measured voltage.
+
+    ``voltage`` [V] at ``profile.t``; ``variance`` Q_i [V²] (scalar or per sample); start from rest at
+    ``soc0``; ``ambient`` and ``T0`` [K]; ``mask`` selects the samples that enter the fit (default all).
+    ``lead_in``: the first samples only carry the cell's state into the scored part (e.g. the logged preparation
+    from a full charge to the profile's start): they are simulated, never scored (the mask excludes them).
+    """
+
+    name: str
+    profile: Profile
+    voltage: np.ndarray
+    soc0: float
+    variance: float | np.ndarray
+    ambient: float = 298.15
+    T0: float | None = None
+    mask: np.ndarray | None = None
+    truth: np.ndarray | None = None  # noise-free voltage, when known (virtual lab)
+    lead_in: int = 0
+
+    def __post_init__(self) -> None:
+        v = np.asarray(self.voltage, float).reshape(-1)
+        if v.size != self.profile.t.size:
+            raise InputError(f"experiment {self.name}: {v.size} voltages for {self.profile.t.size} samples")
+        if not np.isfinite(v).all():
+            raise InputError(f"experiment {self.name}: voltage has NaN")
+        q = np.broadcast_to(np.asarray(self.variance, float), v.shape)
+        if not (np.isfinite(q).all() and (q > 0).all()):
+            raise InputError(f"experiment {self.name}: the variance Q must be positive and finite")
+        object.__setattr__(self, "voltage", v)
+        object.__setattr__(self, "variance", q)
+        m = np.ones(v.size, bool) if self.mask is None else np.asarray(self.mask, bool).reshape(-1).copy()
+        if not 0 <= self.lead_in < v.size:
+            raise InputError(f"experiment {self.name}: lead-in of {self.lead_in} samples for {v.size} samples")
+        m[: self.lead_in] = False
+        object.__setattr__(self, "mask", m)
+
+    @property
+    def hours(self) -> float:
+        """Duration of the scored part [h] (the lead-in left out)."""
+        return (self.profile.t[-1] - self.profile.t[self.lead_in]) / 3600.0
+
+    @property
+    def scored_profile(self) -> Profile:
+        """The profile after the lead-in (its time from 0, its metadata kept)."""
+        if not self.lead_in:
+            return self.profile
+        p = self.profile
+        t = p.t[self.lead_in :]
+        return Profile(t - t[0], p.current[self.lead_in :], id=p.id, kind=p.kind, soc0=p.soc0, params=dict(p.params))
+
+    @property
+    def scored_voltage(self) -> np.ndarray:
+        """The voltage after the lead-in [V]."""
+        return self.voltage[self.lead_in :]
+
+
+def variance_of(profile: Profile, noise: NoiseModel | None = None, quantum: float = QUANTUM) -> float:
+    """Q [V²] of a profile: the noise model's q̂² (eqs. 37–40) plus quantisation Δ²/12."""
+    return (noise or NoiseModel()).variance(profile) + quantum**2 / 12.0
 
 
 def segments(data: LoggedData, max_gap: float = 60.0) -> list[slice]:

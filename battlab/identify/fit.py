@@ -3,9 +3,9 @@
 
 The residual of experiment i at sample k is r = (y_i(k) − ŷ_i(k; θ̄)) / √Q_i (W = Q⁻¹); scipy's
 ``least_squares`` (trust-region reflective, bounds [0, 1], Jacobian scaling as eq. 42's diag term) drives the
-iteration; the Jacobian is ours: −dV/dθ̄ / √Q from the forward sensitivities. A simulation that stops early at a
-voltage limit holds its last voltage for the missing samples (their Jacobian rows are zero), so a bad trial
-point costs much instead of failing.
+iteration; the Jacobian is ours: −dV/dθ̄ / √Q from the forward sensitivities (:mod:`battlab.identify.problem`). A
+simulation that stops early at a voltage limit holds its last voltage for the missing samples (their Jacobian rows
+are zero), so a bad trial point costs much instead of failing.
 
 Group-wise and cumulative (docs/decisions.md): stage k fits the parameters of groups 1..k on all data of stages
 1..k, starting where stage k − 1 ended; the final intervals are the last stage's.
@@ -23,83 +23,17 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from battlab import parameters
-from battlab.cell import Cell, rest_stoichiometries
+from battlab.cell import Cell
 from battlab.identify import statistics
 from battlab.identify.ageing import Ageing
+from battlab.identify.experiments import Experiment
 from battlab.identify.forward import ForwardModel
 from battlab.identify.gauss_newton import GaussNewtonStep, bounded_gauss_newton
-from battlab.noise import NoiseModel
+from battlab.identify.problem import Problem, abs_errors_mV, rmse_mV
 from protocols.errors import InputError
-from protocols.profile import Profile
-
-#: Voltage quantisation of the tester [V]; its variance Δ²/12 is added to the noise model's Q.
-QUANTUM = 1e-4
 
 #: The paper's Table 9 groups (the design module's groups replace them when a plan gives its own).
 TABLE9_GROUPS = parameters.TABLE9_GROUPS
-
-
-@dataclass(frozen=True, eq=False)
-class Experiment:
-    """One identification (or validation) experiment: the applied profile and the measured voltage.
-
-    ``voltage`` [V] at ``profile.t``; ``variance`` Q_i [V²] (scalar or per sample); start from rest at
-    ``soc0``; ``ambient`` and ``T0`` [K]; ``mask`` selects the samples that enter the fit (default all).
-    ``lead_in``: the first samples only carry the cell's state into the scored part (e.g. the logged preparation
-    from a full charge to the profile's start): they are simulated, never scored (the mask excludes them).
-    """
-
-    name: str
-    profile: Profile
-    voltage: np.ndarray
-    soc0: float
-    variance: float | np.ndarray
-    ambient: float = 298.15
-    T0: float | None = None
-    mask: np.ndarray | None = None
-    truth: np.ndarray | None = None  # noise-free voltage, when known (virtual lab)
-    lead_in: int = 0
-
-    def __post_init__(self) -> None:
-        v = np.asarray(self.voltage, float).reshape(-1)
-        if v.size != self.profile.t.size:
-            raise InputError(f"experiment {self.name}: {v.size} voltages for {self.profile.t.size} samples")
-        if not np.isfinite(v).all():
-            raise InputError(f"experiment {self.name}: voltage has NaN")
-        q = np.broadcast_to(np.asarray(self.variance, float), v.shape)
-        if not (np.isfinite(q).all() and (q > 0).all()):
-            raise InputError(f"experiment {self.name}: the variance Q must be positive and finite")
-        object.__setattr__(self, "voltage", v)
-        object.__setattr__(self, "variance", q)
-        m = np.ones(v.size, bool) if self.mask is None else np.asarray(self.mask, bool).reshape(-1).copy()
-        if not 0 <= self.lead_in < v.size:
-            raise InputError(f"experiment {self.name}: lead-in of {self.lead_in} samples for {v.size} samples")
-        m[: self.lead_in] = False
-        object.__setattr__(self, "mask", m)
-
-    @property
-    def hours(self) -> float:
-        """Duration of the scored part [h] (the lead-in left out)."""
-        return (self.profile.t[-1] - self.profile.t[self.lead_in]) / 3600.0
-
-    @property
-    def scored_profile(self) -> Profile:
-        """The profile after the lead-in (its time from 0, its metadata kept)."""
-        if not self.lead_in:
-            return self.profile
-        p = self.profile
-        t = p.t[self.lead_in :]
-        return Profile(t - t[0], p.current[self.lead_in :], id=p.id, kind=p.kind, soc0=p.soc0, params=dict(p.params))
-
-    @property
-    def scored_voltage(self) -> np.ndarray:
-        """The voltage after the lead-in [V]."""
-        return self.voltage[self.lead_in :]
-
-
-def variance_of(profile: Profile, noise: NoiseModel | None = None, quantum: float = QUANTUM) -> float:
-    """Q [V²] of a profile: the noise model's q̂² (eqs. 37–40) plus quantisation Δ²/12."""
-    return (noise or NoiseModel()).variance(profile) + quantum**2 / 12.0
 
 
 @dataclass(frozen=True)
@@ -212,182 +146,10 @@ def _nan_to_none(a: np.ndarray | None) -> list[list[float | None]] | None:
     return [[float(v) if np.isfinite(v) else None for v in row] for row in np.asarray(a, float)]
 
 
-class _Problem:
-    """Residuals and Jacobian of eq. 41 for a set of experiments and fitted names, cached per θ̄."""
-
-    def __init__(
-        self,
-        fm: ForwardModel,
-        experiments: Sequence[Experiment],
-        names: Sequence[str],
-        theta_full: np.ndarray,
-        soc_span: float = 0.0,
-        pool: ThreadPoolExecutor | None = None,
-        ageing: Ageing | None = None,
-    ) -> None:
-        self.fm = fm
-        self.exps = list(experiments)
-        self.names = tuple(names)
-        order = getattr(fm, "names", parameters.NAMES)  # θ̄'s order: the 18, then the cell's extensions' KEY.NAME
-        self.idx = [order.index(n) for n in self.names]
-        self.base = np.asarray(theta_full, float).copy()
-        self.soc_span = float(soc_span)  # > 0: one start-SOC nuisance per experiment, soc0 ± soc_span
-        self.n_nuis = len(self.exps) if self.soc_span > 0 else 0
-        # per-file ageing: each file (label) of the experiments gets the ageing names' columns after the nuisances
-        self.ageing = ageing
-        self.files: list[str] = []
-        self.file_of: list[int] = []
-        if ageing is not None:
-            for e in self.exps:
-                label = ageing.files.get(e.name, e.name)
-                if label not in self.files:
-                    self.files.append(label)
-                self.file_of.append(self.files.index(label))
-        self.n_age = len(self.files) * len(ageing.names) if ageing is not None else 0
-        self._cache: dict[bytes, tuple[np.ndarray, np.ndarray, list[np.ndarray]]] = {}  # the last two points
-        self.n_sim = 0  # simulations of all experiments (every evaluation not found in the cache)
-        self.pool = pool
-        #: the lowest-cost point evaluated so far and its cost (kept apart from the cache: never re-simulated)
-        self.best_x: np.ndarray | None = None
-        self.best_cost = float("inf")
-        self._best: tuple[np.ndarray, np.ndarray, list[np.ndarray]] | None = None
-
-    def full(self, x: np.ndarray) -> np.ndarray:
-        th = self.base.copy()
-        th[self.idx] = x
-        return th
-
-    def evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-        key = np.asarray(x, float).tobytes()
-        if key in self._cache:
-            return self._cache[key]
-        if self._best is not None and self.best_x is not None and key == self.best_x.tobytes():
-            return self._best
-        x = np.asarray(x, float)
-        th = self.full(x[: len(self.names)])
-        idx = range(len(self.exps))
-        parts = (
-            list(self.pool.map(self._one, idx, [th] * len(idx), [x] * len(idx)))
-            if self.pool
-            else [self._one(i, th, x) for i in idx]
-        )
-        rs, js, preds = (list(z) for z in zip(*parts, strict=True))
-        self.n_sim += 1
-        if len(self._cache) >= 2:
-            self._cache.pop(next(iter(self._cache)))
-        self._cache[key] = (np.concatenate(rs), np.vstack(js), preds)
-        r = self._cache[key][0]
-        cost = 0.5 * float(r @ r)
-        if cost < self.best_cost:
-            self.best_x, self.best_cost, self._best = x.copy(), cost, self._cache[key]
-        return self._cache[key]
-
-    def _one(self, i: int, th: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Weighted residuals, Jacobian rows and prediction of experiment i."""
-        e = self.exps[i]
-        p = len(self.names)
-        soc0 = self.soc_of(i, x)
-        pred, S = self._run(th, i, soc0, True, x)
-        w = 1.0 / np.sqrt(e.variance)
-        m = e.mask
-        cols = [S]
-        if self.n_nuis:  # dV/du by a one-sided difference (the start SOC has no exact sensitivity)
-            h = 1e-3 if x[p + i] < 0.5 else -1e-3
-            p2, _ = self._run(th, i, soc0 + 2 * self.soc_span * h, False, x)
-            col = np.zeros((e.voltage.size, self.n_nuis))
-            col[:, i] = (p2 - pred) / h
-            cols.append(col)
-        if self.n_age:  # the file's ageing columns, one-sided differences as the start SOC's
-            col = np.zeros((e.voltage.size, self.n_age))
-            for j in self.age_columns(i):
-                h = 1e-3 if x[j] < 0.5 else -1e-3
-                xh = x.copy()
-                xh[j] += h
-                p2, _ = self._run(th, i, soc0, False, xh)
-                col[:, j - p - self.n_nuis] = (p2 - pred) / h
-            cols.append(col)
-        if len(cols) > 1:
-            S = np.hstack(cols)
-        return ((pred - e.voltage) * w)[m], (S * w[:, None])[m], pred
-
-    def age_columns(self, i: int) -> list[int]:
-        """The positions in x of experiment i's file's ageing parameters."""
-        if not self.n_age or self.ageing is None:
-            return []
-        k = len(self.ageing.names)
-        first = len(self.names) + self.n_nuis + self.file_of[i] * k
-        return list(range(first, first + k))
-
-    def age_values(self, g: int, x: np.ndarray) -> dict[str, float]:
-        """File g's ageing values (physical units) at x."""
-        assert self.ageing is not None
-        k = len(self.ageing.names)
-        first = len(self.names) + self.n_nuis + g * k
-        return {n: self.ageing.denormalise(n, float(x[first + j])) for j, n in enumerate(self.ageing.names)}
-
-    def age_x0(self) -> np.ndarray:
-        """The ageing parameters' start (normalised), file by file."""
-        if self.ageing is None:
-            return np.zeros(0)
-        a = self.ageing
-        return np.array([a.normalise(n, a.start_value(f, n)) for f in self.files for n in a.names])
-
-    def soc_of(self, i: int, x: np.ndarray) -> float:
-        e = self.exps[i]
-        if not self.n_nuis:
-            return e.soc0
-        return float(np.clip(e.soc0 + 2 * self.soc_span * (x[len(self.names) + i] - 0.5), 0.0, 1.0))
-
-    def _run(self, th: np.ndarray, i: int, soc0: float, sens: bool, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Prediction and sensitivities of experiment i at θ (full) with the ageing values of x."""
-        e = self.exps[i]
-        n = e.voltage.size
-        start, capacity = None, 1.0
-        if self.n_age and self.ageing is not None:
-            g = self.file_of[i]
-            label = self.files[g]
-            n_li, capacity = self.ageing.state(label, self.age_values(g, x))
-            try:
-                start = rest_stoichiometries(self.fm.cell, n_li, float(self.fm.cell.ocv(soc0)), capacity=capacity)
-            except InputError:  # no such state: a large but finite residual, as for nothing simulated
-                return np.full(n, e.voltage[0] + 1.0), np.zeros((n, len(self.names)))
-        out = self.fm.run(
-            th,
-            e.profile,
-            soc0,
-            ambient=e.ambient,
-            T0=e.T0,
-            sensitivities=self.names if sens else (),
-            start=start,
-            capacity=capacity,
-        )
-        pred = np.empty(n)
-        S = np.zeros((n, len(self.names)))
-        k = out.voltage.size
-        if k:
-            pred[:k] = out.voltage
-            if sens:
-                S[:k] = out.sensitivities
-            pred[k:] = out.voltage[-1]
-        else:
-            pred[:] = e.voltage[0] + 1.0  # nothing simulated: a large but finite residual
-        return pred, S
-
-
-def _rmse(exps: Sequence[Experiment], preds: list[np.ndarray]) -> dict[str, float]:
-    return {
-        e.name: float(1e3 * np.sqrt(np.mean((p - e.voltage)[e.mask] ** 2))) for e, p in zip(exps, preds, strict=True)
-    }
-
-
-def _abs_errors(exps: Sequence[Experiment], preds: list[np.ndarray]) -> np.ndarray:
-    return np.concatenate([1e3 * np.abs(p - e.voltage)[e.mask] for e, p in zip(exps, preds, strict=True)])
-
-
 POLISH_STEPS = (1.0, 0.5, 0.25, 0.1, 0.03, 0.01)
 
 
-def _polish(prob: _Problem, x: np.ndarray, opt: Options) -> tuple[np.ndarray, GaussNewtonStep, int]:
+def _polish(prob: Problem, x: np.ndarray, opt: Options) -> tuple[np.ndarray, GaussNewtonStep, int]:
     """Bounded Gauss–Newton steps with backtracking after an optimiser stopped by its iteration limit (the
     trust-region iterations crawl along the long, curved valleys of the nearly dependent parameters).
 
@@ -476,7 +238,7 @@ def _fit(
     pool: ThreadPoolExecutor | None,
     ageing: Ageing | None = None,
 ) -> FitResult:
-    prob = _Problem(fm, experiments, names, theta_full, soc_span, pool, ageing)
+    prob = Problem(fm, experiments, names, theta_full, soc_span, pool, ageing)
     x0 = np.r_[
         np.clip(theta_full[prob.idx], 1e-6, 1 - 1e-6), np.full(prob.n_nuis, 0.5), np.clip(prob.age_x0(), 0.0, 1.0)
     ]
@@ -561,10 +323,10 @@ def _fit(
         th[prob.idx],
         st,
         conv,
-        _rmse(experiments, preds),
-        _rmse(experiments, preds0),
-        _abs_errors(experiments, preds0),
-        _abs_errors(experiments, preds),
+        rmse_mV(experiments, preds),
+        rmse_mV(experiments, preds0),
+        abs_errors_mV(experiments, preds0),
+        abs_errors_mV(experiments, preds),
         tuple(e.name for e in experiments),
         stage,
         extra,
@@ -572,7 +334,7 @@ def _fit(
 
 
 def _ageing_report(
-    prob: _Problem, x: np.ndarray, J: np.ndarray, r: np.ndarray, opt: Options
+    prob: Problem, x: np.ndarray, J: np.ndarray, r: np.ndarray, opt: Options
 ) -> dict[str, dict[str, dict[str, object]]]:
     """Each file's ageing values, 95 % intervals (eq. 46 from the covariance of all parameters, the pseudo-inverse if
     singular; ``ci95_scaled`` with s²) and bound flags: {file: {name: {...}}}."""

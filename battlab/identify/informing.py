@@ -41,7 +41,8 @@ INFORMED_BY: dict[str, tuple[str, str]] = {
     ),
     "capacity_fade": (
         "pulse",
-        "a long test with rests at both ends (a loss of capacity shows in the charge balance over hours)",
+        "a long test with rests at both ends and at several SOCs (a loss of capacity shows in the charge balance "
+        "over hours, the side current's Tafel slope in how it changes with the negative electrode's potential)",
     ),
     "electrolyte": ("pulse", "long high-rate pulses (300-1000 s at 2C or more: large electrolyte gradients)"),
 }

@@ -41,8 +41,7 @@ from typing import Any
 import numpy as np
 
 from battlab.cell import Cell
-from battlab.identify.experiments import FULL_CHARGE, experiments_from_data, state_steps
-from battlab.identify.fit import Experiment
+from battlab.identify.experiments import FULL_CHARGE, Experiment, experiments_from_data, state_steps
 from battlab.io.logged import CYCLE, NET_CAPACITY, STEP, STEP_INDEX, SURFACE, LoggedData
 from battlab.io.plan import DESIGN_GROUPS, DesignGroup, Plan, groups_from_dicts, label_groups
 from battlab.noise import NoiseModel

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from battlab.cell import Cell
-from battlab.identify.fit import variance_of
+from battlab.identify.experiments import variance_of
 from battlab.identify.forward import ForwardModel
 from battlab.noise import NoiseModel
 from protocols.profile import Profile

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from battlab.cell import Cell
-from battlab.identify.fit import Experiment
+from battlab.identify.experiments import Experiment
 from battlab.identify.forward import ForwardModel
 from protocols.drive_cycles import Cycle, drive_profile
 from protocols.profile import Profile

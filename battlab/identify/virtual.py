@@ -2,7 +2,7 @@
 
 Noise per profile: white Gaussian with the noise model's standard deviation q̂ (eqs. 37–39, floored at the
 tester's resolution) and quantisation to ``quantum`` (100 µV). The weights of the fit use Q = q̂² + Δ²/12,
-which is the variance of that noise (:func:`battlab.identify.fit.variance_of`).
+which is the variance of that noise (:func:`battlab.identify.experiments.variance_of`).
 
 (The physical virtual tester in ``drivers`` generates its noise from physics and the eq. 38 regression is fitted
 to it; here the noise level is set by the noise model on purpose, so that the weights are right and the
@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from battlab.cell import Cell
-from battlab.identify.fit import QUANTUM, Experiment, variance_of
+from battlab.identify.experiments import QUANTUM, Experiment, variance_of
 from battlab.identify.forward import ForwardModel
 from battlab.noise import NoiseModel
 from protocols.errors import InputError

@@ -14,7 +14,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from battlab.identify.fit import Experiment, variance_of
+from battlab.identify.experiments import Experiment, variance_of
 from battlab.noise import NoiseModel, direction, intensity, load, repeat_noise
 
 #: what the summary says when neither a model nor repeated trials were given

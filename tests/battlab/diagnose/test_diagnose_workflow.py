@@ -173,7 +173,7 @@ def test_causes_the_data_cannot_show_are_listed_with_the_experiment_that_would()
     a charge and after a discharge are "not testable here", each with a library profile kind; a named cause is never
     listed."""
     from battlab.diagnose.testability import untestable
-    from battlab.identify.fit import Experiment
+    from battlab.identify.experiments import Experiment
     from protocols.profile import Profile
 
     t = np.arange(0.0, 600.0)

@@ -13,6 +13,7 @@ from battlab.cell import rest_stoichiometries
 from battlab.cli import main
 from battlab.identify import ageing as A
 from battlab.identify import fit as F
+from battlab.identify.experiments import Experiment
 from battlab.identify.forward import ForwardModel
 from battlab.io.bdf import write_bdf_csv
 from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE, LoggedData
@@ -45,9 +46,9 @@ def two_dates():
     return cell, fm, prof, truth, clean
 
 
-def experiments(prof: Profile, clean: dict[str, np.ndarray]) -> list[F.Experiment]:
+def experiments(prof: Profile, clean: dict[str, np.ndarray]) -> list[Experiment]:
     rng = np.random.default_rng(3)
-    return [F.Experiment(f, prof, v + rng.normal(0.0, NOISE, v.size), 1.0, NOISE**2) for f, v in clean.items()]
+    return [Experiment(f, prof, v + rng.normal(0.0, NOISE, v.size), 1.0, NOISE**2) for f, v in clean.items()]
 
 
 def test_each_files_lithium_and_capacity_are_recovered_where_one_set_cannot(two_dates) -> None:

@@ -8,18 +8,19 @@ import pytest
 import battlab
 from battlab.identify import fit as F
 from battlab.identify.arrhenius import fit_arrhenius, split_by_ambient
+from battlab.identify.experiments import Experiment
 from battlab.identify.forward import ForwardModel
 from protocols.errors import InputError
 from protocols.profile import Profile
 
 
-def _experiment(cell: battlab.Cell, ambient: float) -> F.Experiment:
+def _experiment(cell: battlab.Cell, ambient: float) -> Experiment:
     """1C discharge pulses with rests (20 min, 1 s) from SOC 0.8, simulated isothermally enough (0.5C mean)."""
     t = np.arange(0.0, 1200.0, 1.0)
     i = np.where((t % 200.0) < 60.0, -2.7, 0.0)
     prof = Profile(t, i, id=f"pulses{ambient:.0f}")
     res = battlab.simulate(cell, prof, soc0=0.8, ambient=ambient)
-    return F.Experiment(prof.id, prof, res.voltage, 0.8, 1e-6, ambient, None)
+    return Experiment(prof.id, prof, res.voltage, 0.8, 1e-6, ambient, None)
 
 
 def test_an_activation_energy_is_recovered_from_a_refit_at_another_temperature() -> None:

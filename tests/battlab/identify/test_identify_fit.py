@@ -8,6 +8,7 @@ import pytest
 import battlab
 from battlab import parameters as P
 from battlab.identify import fit as F
+from battlab.identify.experiments import Experiment
 from battlab.identify.forward import ForwardModel, Output
 from battlab.identify.gauss_newton import bounded_gauss_newton
 from battlab.identify.virtual import noise_free, synthesize
@@ -158,7 +159,7 @@ def linear_fit(options: F.Options) -> F.FitResult:
     names = P.NAMES[: x0.size]
     sigma = 1e-3
     t = np.arange(r0.size, dtype=float)
-    exp = F.Experiment("linear", Profile(t, np.zeros_like(t)), 3.7 - sigma * r0, 0.5, sigma**2)
+    exp = Experiment("linear", Profile(t, np.zeros_like(t)), 3.7 - sigma * r0, 0.5, sigma**2)
     start = battlab.Cell.load("nca18650").with_normalised(**dict(zip(names, map(float, x0), strict=True)))
     fm = LinearModel(names, x0, jac, sigma)
     return F.fit(start, [exp], names, forward=fm, options=options)
@@ -217,7 +218,7 @@ def test_start_soc_nuisance_is_fitted_and_marginalised(setup) -> None:
     cell, truth, fm, profs, clean = setup
     exps = [synthesize(fm, truth, p, p.soc0, seed=11 + k, clean=clean[p.id]) for k, p in enumerate(profs)]
     off = [
-        F.Experiment(e.name, e.profile, e.voltage, e.soc0 + d, e.variance, truth=e.truth)
+        Experiment(e.name, e.profile, e.voltage, e.soc0 + d, e.variance, truth=e.truth)
         for e, d in zip(exps, (0.02, -0.015), strict=True)
     ]  # start SOC guessed wrong
     res = F.fit(cell, off, NAMES, forward=fm, soc_span=0.05)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from battlab.identify.fit import Experiment
+from battlab.identify.experiments import Experiment
 from battlab.identify.informing import check_informed, uninformed
 from protocols import Profile
 from protocols.errors import InputError

@@ -199,13 +199,14 @@ def test_a_fit_recovers_extension_parameters_with_the_base_ones(nca: Cell) -> No
     """The fit machinery takes KEY.NAME like the 18: a contact resistance and a sensor offset hidden in synthetic
     data are found with R_f_n, from the base values."""
     from battlab.identify import fit as F
+    from battlab.identify.experiments import Experiment
 
     truth = nca.with_extension("contact_resistance", R_c=0.006).with_extension("current_sensor", offset=0.03)
     truth = truth.with_values(R_f_n=2e-4)
     prof = pulses(1200.0)
     y = battlab.simulate(truth, prof, soc0=0.6, settings=Settings(adaptive=False)).voltage  # the fit's steps
     start = nca.with_extension("contact_resistance").with_extension("current_sensor")
-    exp = F.Experiment("pulses", prof, y, 0.6, 1e-8)
+    exp = Experiment("pulses", prof, y, 0.6, 1e-8)
     names = ("contact_resistance.R_c", "current_sensor.offset", "R_f_n")
     res = F.fit(start, [exp], names)
     assert res.cell.value("contact_resistance.R_c") == pytest.approx(0.006, rel=1e-3)
