@@ -24,13 +24,13 @@ from protocols.errors import InputError
 
 if TYPE_CHECKING:
     from battlab.cell import Cell
-    from battlab.model.dfn import DFN, Context
+    from battlab.model.context import Context
     from battlab.model.mesh import Mesh
 
 
 @dataclass(frozen=True)
 class Extension:
-    """A submodel. Hooks take the evaluation :class:`~battlab.model.dfn.Context` (``c.p`` holds the physical
+    """A submodel. Hooks take the evaluation :class:`~battlab.model.context.Context` (``c.p`` holds the physical
     values of every parameter, an extension's as ``KEY.NAME``) and return the changed quantity."""
 
     key: ClassVar[str]
@@ -49,9 +49,9 @@ class Extension:
         """Extra differential states (appended to x after the temperatures)."""
         return 0
 
-    def initial_states(self, model: DFN, soc0: float) -> np.ndarray:
+    def initial_states(self, mesh: Mesh, soc0: float) -> np.ndarray:
         """Their values at rest."""
-        return np.zeros(self.n_states(model.mesh))
+        return np.zeros(self.n_states(mesh))
 
     def n_algebraic(self, mesh: Mesh) -> int:
         """Extra algebraic states (appended to z after i⁺; 0 is their guess at rest)."""
@@ -220,7 +220,7 @@ class CapacityFade(Extension):
     def n_states(self, mesh: Mesh) -> int:
         return 2
 
-    def initial_states(self, model: DFN, soc0: float) -> np.ndarray:
+    def initial_states(self, mesh: Mesh, soc0: float) -> np.ndarray:
         return np.ones(2)
 
     def side_current(self, c: Context, e: str) -> ca.SX | None:

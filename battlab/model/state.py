@@ -98,7 +98,7 @@ def initial_state(
     x[sl["T2"]] = T0 - model.T_ref
     for ext in model.options.extensions:
         if ext.key in sl:
-            x[sl[ext.key]] = ext.initial_states(model, soc0)
+            x[sl[ext.key]] = ext.initial_states(model.mesh, soc0)
     return x
 
 
