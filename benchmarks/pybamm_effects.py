@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pybamm_reference import pybamm_zoh
+from pybamm_reference import hysteresis_in_pybamm, pybamm_zoh
 
 ROOT = Path(__file__).resolve().parents[1]
 BPX = Path(os.environ.get("BATTLAB_DATA", ROOT.parent / "shared" / "data")) / "bpx" / "nmc_pouch_cell_BPX.json"
@@ -95,15 +95,7 @@ SEI = {
 
 
 def _hysteresis(pv: Any) -> dict[str, Any]:
-    U = pv["Negative electrode OCP [V]"]
-    M, gamma = 0.010, 30.0
-    return {
-        "Negative electrode lithiation OCP [V]": lambda sto: U(sto) - M,
-        "Negative electrode delithiation OCP [V]": lambda sto: U(sto) + M,
-        "Negative particle lithiation hysteresis decay rate": lambda sto, T: gamma,
-        "Negative particle delithiation hysteresis decay rate": lambda sto, T: gamma,
-        "Initial hysteresis state in negative electrode": 0.0,
-    }
+    return hysteresis_in_pybamm(pv["Negative electrode OCP [V]"], 0.010, 30.0)[1]
 
 
 CASES: dict[str, Case] = {

@@ -142,3 +142,57 @@ def check_zoh(duration: float = 120.0) -> float:
 def rmse_mV(t_a: np.ndarray, v_a: np.ndarray, t_b: np.ndarray, v_b: np.ndarray) -> float:
     _, ia, ib = np.intersect1d(np.round(t_a, 9), np.round(t_b, 9), return_indices=True)
     return float(1e3 * np.sqrt(np.mean((v_a[ia] - v_b[ib]) ** 2)))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# battlab's extensions as PyBaMM options
+def hysteresis_in_pybamm(U: Any, M: float, gamma: float) -> tuple[dict[str, Any], dict[str, Any]]:
+    """PyBaMM's options and values for battlab's hysteresis on the negative electrode (half-width ``M`` [V], decay
+    rate ``gamma``, h₀ = 0): one-state hysteresis with branches U ∓ M and equal decay rates; ``U`` is PyBaMM's
+    negative OCP function."""
+    values = {
+        "Negative electrode lithiation OCP [V]": lambda sto: U(sto) - M,
+        "Negative electrode delithiation OCP [V]": lambda sto: U(sto) + M,
+        "Negative particle lithiation hysteresis decay rate": lambda sto, T: gamma,
+        "Negative particle delithiation hysteresis decay rate": lambda sto, T: gamma,
+        "Initial hysteresis state in negative electrode": 0.0,
+    }
+    return {"open-circuit potential": ("one-state hysteresis", "single")}, values
+
+
+#: the SEI OCP [V] of PyBaMM's reaction-limited model (Chen 2020's value, as PyBaMM's examples use it)
+U_SEI = 0.4
+
+
+def capacity_fade_in_pybamm(
+    cell: Any, T: float, I_side: float, alpha_side: float, lam_n: float = 0.0, lam_p: float = 0.0
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """PyBaMM's options and values for battlab's capacity_fade on ``cell`` at temperature ``T`` [K]: the
+    reaction-limited SEI (asymmetric, transfer coefficient ``alpha_side``) with exchange current density
+    j0 = I_side / (a A L⁻) · exp(−α F/(R T) (U_sei − U_ref)), no film resistance (resistivity 0: the film's drop also
+    leaves the SEI overpotential) and no activation energy; the "current-driven" loss of active material at the
+    constant rates dε_s/dt = −ε_s⁰ lam/3600. The SEI's thickness, volume and lithium ratio do not act here."""
+    from battlab.cell import R_GAS, F
+    from battlab.model.extensions import CapacityFade
+
+    eps_n, eps_p = float(cell["eps_s_n"]), float(cell["eps_s_p"])
+    area = 3.0 * eps_n / float(cell["R_s_n"]) * float(cell["A"]) * float(cell["L_n"])  # a A L⁻ [m²]
+    j0 = I_side / area * np.exp(-alpha_side * F / (R_GAS * T) * (U_SEI - CapacityFade.U_ref))
+    values = {
+        "Ratio of lithium moles to SEI moles": 2.0,
+        "SEI partial molar volume [m3.mol-1]": 9.585e-05,
+        "SEI resistivity [Ohm.m]": 0.0,
+        "SEI open-circuit potential [V]": U_SEI,
+        "Initial SEI thickness [m]": 5e-09,
+        "SEI growth activation energy [J.mol-1]": 0.0,
+        "SEI growth transfer coefficient": alpha_side,
+        "SEI reaction exchange current density [A.m-2]": float(j0),
+        "Negative electrode current-driven LAM rate": lambda i, T: -eps_n * lam_n / 3600.0 + 0.0 * i,
+        "Positive electrode current-driven LAM rate": lambda i, T: -eps_p * lam_p / 3600.0 + 0.0 * i,
+    }
+    options = {
+        "SEI": "reaction limited (asymmetric)",
+        "SEI film resistance": "none",
+        "loss of active material": "current-driven",
+    }
+    return options, values

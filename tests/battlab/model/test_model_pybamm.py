@@ -10,6 +10,7 @@ battlab reports right limits at the samples, so PyBaMM is read at t_k + 1 µs.
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 from pathlib import Path
 from typing import Any
@@ -29,26 +30,14 @@ else:
 
 pytestmark = pytest.mark.slow
 
-FINE = {k: 60 for k in ("x_n", "x_s", "x_p", "r_n", "r_p")}
-RIGHT = 1e-6  # s after a current step: PyBaMM's right limit
-
-
-def balanced_sum(terms: list[Any]) -> Any:
-    """Sum of PyBaMM symbols as a balanced tree (a long chain overflows PyBaMM's recursive tree walks)."""
-    while len(terms) > 1:
-        terms = [terms[i] + terms[i + 1] if i + 1 < len(terms) else terms[i] for i in range(0, len(terms), 2)]
-    return terms[0]
-
-
-def pybamm_current(prof: Profile) -> Any:
-    """The profile's zero-order-hold current in PyBaMM's sign (positive = discharge), exactly:
-    I_0 + Σ ΔI_k H(t − t_k)."""
-    i_dis = -prof.current
-    terms = [pybamm.Scalar(float(i_dis[0]))]
-    for dI, tk in zip(np.diff(i_dis[:-1]), prof.t[1:-1], strict=True):
-        if dI != 0.0:
-            terms.append(pybamm.Scalar(float(dI)) * (pybamm.t >= pybamm.Scalar(float(tk))))
-    return balanced_sum(terms)
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
+from pybamm_reference import (  # noqa: E402  (the PyBaMM side the benchmarks share)
+    FINE,
+    RIGHT,
+    capacity_fade_in_pybamm,
+    hysteresis_in_pybamm,
+    pybamm_zoh,
+)
 
 
 def run_pybamm(
@@ -64,7 +53,7 @@ def run_pybamm(
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         pv = pybamm.ParameterValues.create_from_bpx(str(path), target_soc=soc0)
-    pv["Current function [A]"] = pybamm_current(prof)
+    pv["Current function [A]"] = pybamm_zoh(prof.t, prof.current)
     pv.update(values or {}, check_already_exists=False)
     sim = pybamm.Simulation(
         pybamm.lithium_ion.DFN(options or {}),
@@ -168,18 +157,10 @@ def test_hysteresis_extension_against_pybamm(nmc_bpx: Path) -> None:
         warnings.simplefilter("ignore")
         U = pybamm.ParameterValues.create_from_bpx(str(nmc_bpx), target_soc=0.6)["Negative electrode OCP [V]"]
     M, gamma = 0.01, 30.0
-    vals = {
-        "Negative electrode lithiation OCP [V]": lambda sto: U(sto) - M,
-        "Negative electrode delithiation OCP [V]": lambda sto: U(sto) + M,
-        "Negative particle lithiation hysteresis decay rate": lambda sto, T: gamma,
-        "Negative particle delithiation hysteresis decay rate": lambda sto, T: gamma,
-        "Initial hysteresis state in negative electrode": 0.0,
-    }
+    opts, vals = hysteresis_in_pybamm(U, M, gamma)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # PyBaMM's note on its changed decay-rate definition (the one used here)
-        t_ref, v_ref, temps = run_pybamm(
-            nmc_bpx, prof, 0.6, {"open-circuit potential": ("one-state hysteresis", "single")}, vals
-        )
+        t_ref, v_ref, temps = run_pybamm(nmc_bpx, prof, 0.6, opts, vals)
     assert t_ref.size == prof.t.size
     kw = {"soc0": 0.6, "isothermal": True, "ambient": temps["Ambient"], "T0": temps["Initial"]}
     base = battlab.simulate(cell, prof, **kw)
@@ -249,37 +230,20 @@ def test_double_layer_extension_against_pybamm(nmc_bpx: Path) -> None:
 
 
 def test_capacity_fade_extension_against_pybamm(nmc_bpx: Path) -> None:
-    """battlab's capacity_fade extension against PyBaMM's reaction-limited SEI (symmetric, α = 0.5, exchange current
-    density 3e-4 A/m², SEI OCP 0.4 V, no film resistance, no activation energy) with "current-driven" loss of active
-    material at constant rates (30 %/h negative, 10 %/h positive) on the pulses: RMSE ≤ 1 mV (measured 0.32 mV, the
-    base model's agreement). The side current follows the negative electrode's surface potential (its electrode
-    average spans a factor of about 50 on these pulses); battlab's I_side is PyBaMM's
-    j0 · a A L⁻ · exp(α F/(R T) · 0.3 V). Without the extension battlab is 8 mV off."""
-    from battlab.cell import R_GAS, F
-    from battlab.model.extensions import CapacityFade
-
+    """battlab's capacity_fade extension (I_side 1.5 A at 0.1 V with α_side 0.5, loss of active material 30 %/h
+    negative and 10 %/h positive) against PyBaMM's reaction-limited SEI (the same Tafel kinetics: j0 2.7e-4 A/m², SEI
+    OCP 0.4 V, no film resistance) with "current-driven" loss of active material at those constant rates, on the
+    pulses: RMSE ≤ 1 mV (measured 0.32 mV, the base model's agreement). The side current follows the negative
+    electrode's surface potential (its electrode average spans a factor of about 50 on these pulses). Without the
+    extension battlab is 7.1 mV off."""
     cell = Cell.from_bpx(nmc_bpx)
     prof = pulse_profile(float(cell["Q_nom"]))
-    eps_n, eps_p = float(cell["eps_s_n"]), float(cell["eps_s_p"])
-    j0, U_sei, alpha, lam_n, lam_p = 3e-4, 0.4, 0.5, 0.3, 0.1
-    vals = {
-        "Ratio of lithium moles to SEI moles": 2.0,
-        "SEI partial molar volume [m3.mol-1]": 9.585e-05,
-        "SEI resistivity [Ohm.m]": 0.0,
-        "SEI open-circuit potential [V]": U_sei,
-        "Initial SEI thickness [m]": 5e-09,
-        "SEI growth activation energy [J.mol-1]": 0.0,
-        "SEI reaction exchange current density [A.m-2]": j0,
-        "Negative electrode current-driven LAM rate": lambda i, T: -eps_n * lam_n / 3600.0 + 0.0 * i,
-        "Positive electrode current-driven LAM rate": lambda i, T: -eps_p * lam_p / 3600.0 + 0.0 * i,
-    }
-    opts = {"SEI": "reaction limited", "SEI film resistance": "none", "loss of active material": "current-driven"}
+    values = {"I_side": 1.5, "alpha_side": 0.5, "lam_n": 0.3, "lam_p": 0.1}
+    opts, vals = capacity_fade_in_pybamm(cell, 298.15, **values)  # the BPX file's ambient (isothermal here)
     t_ref, v_ref, temps = run_pybamm(nmc_bpx, prof, 0.6, opts, vals)
-    assert t_ref.size == prof.t.size
-    area = 3.0 * eps_n / float(cell["R_s_n"]) * float(cell["A"]) * float(cell["L_n"])  # a A L⁻ [m²]
-    I_side = j0 * area * np.exp(alpha * F / (R_GAS * temps["Ambient"]) * (U_sei - CapacityFade.U_ref))
-    ext = cell.with_extension("capacity_fade", I_side=I_side, alpha_side=alpha, lam_n=lam_n, lam_p=lam_p)
+    assert t_ref.size == prof.t.size and temps["Ambient"] == 298.15
     kw = {"soc0": 0.6, "isothermal": True, "ambient": temps["Ambient"], "T0": temps["Initial"]}
     assert rmse_mV(battlab.simulate(cell, prof, **kw), t_ref, v_ref)[0] > 5.0  # the extension matters here
-    rmse, _ = rmse_mV(battlab.simulate(ext, prof, **kw), t_ref, v_ref)
+    res = battlab.simulate(cell.with_extension("capacity_fade", **values), prof, **kw)
+    rmse, _ = rmse_mV(res, t_ref, v_ref)
     assert rmse <= 1.0, f"voltage RMSE {rmse:.3f} mV against PyBaMM with SEI growth and loss of active material"
