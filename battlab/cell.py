@@ -288,6 +288,29 @@ class Cell:
         exts = {k: {**v, **ext_updates.get(k, {})} for k, v in self.extensions.items()}
         return Cell(self.name, vals, src, self.description, exts)
 
+    def with_ocp(self, electrode: str, curve: Table, source: str = "a table") -> Cell:
+        """A new cell whose electrode ``"n"`` or ``"p"`` has the open-circuit potential ``curve`` (U vs Li/Li⁺ [V]
+        over stoichiometry, e.g. a half-cell measurement: :func:`battlab.io.ocp.read_ocp_csv`). The curve must
+        cover the electrode's stoichiometry window in the new cell (a table is flat beyond its ends: no OCP there);
+        ``source`` names it in that error."""
+        if electrode not in ("n", "p"):
+            raise InputError(f"OCP electrode must be 'n' (negative) or 'p' (positive), got {electrode!r}")
+        if not isinstance(curve, Table):
+            raise InputError(f"OCP of electrode {electrode!r}: expected a table of stoichiometry and potential")
+        cell = self.with_values(**{f"U_{electrode}": curve})
+        side = "negative" if electrode == "n" else "positive"
+        try:  # from the lithium inventory and the voltage limits, unless the cell gives it
+            n0, n1, p0, p1 = cell.stoichiometry_window()
+        except InputError as exc:
+            raise InputError(f"{source}: with this {side} OCP, {exc}") from None
+        lo, hi = (min(n0, n1), max(n0, n1)) if electrode == "n" else (min(p0, p1), max(p0, p1))
+        if lo < curve.x[0] - 1e-9 or hi > curve.x[-1] + 1e-9:
+            raise InputError(
+                f"{source}: the {side} OCP covers stoichiometry {curve.x[0]:.4f}-{curve.x[-1]:.4f}, but cell "
+                f"{self.name!r} uses {lo:.4f}-{hi:.4f} of it between 0 and 100 % SOC"
+            )
+        return cell
+
     def with_extension(self, key: str, **values: float) -> Cell:
         """A new cell with the catalog extension ``key`` on (see :data:`battlab.parameters.EXTENSIONS`), its
         parameters at ``values`` [SI] and the rest at their earlier values, or their "off" values (with which

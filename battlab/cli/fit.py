@@ -17,7 +17,7 @@ from typing import Any
 
 import click
 
-from battlab.cli.options import apply_extensions, extension_option
+from battlab.cli.options import apply_extensions, apply_ocps, extension_option, ocp_option
 
 #: ``--ambient [FILE=]DEGC`` of fit and validate (see :func:`parse_ambients`)
 AMBIENT_OPTION = click.option(
@@ -76,6 +76,7 @@ AMBIENT_OPTION = click.option(
 @click.option("--max-iter", type=int, default=40, show_default=True, help="Function evaluations per stage.")
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
 @extension_option()
+@ocp_option()
 @click.option(
     "--fit-values",
     "value_stages",
@@ -125,6 +126,7 @@ def fit(
     max_iter: int,
     fix_sign: bool,
     extensions: tuple[str, ...],
+    ocps: tuple[str, ...],
     value_stages: tuple[str, ...],
     arrhenius: bool,
     per_file_ageing: str | None,
@@ -151,10 +153,10 @@ def fit(
 
         load(noise_file)
     start: Any = cell_name
-    if extensions:  # the extensions' parameters join the last stage (with --params all: every parameter)
+    if extensions or ocps:  # the extensions' parameters join the last stage (with --params all: every parameter)
         from battlab.cell import Cell
 
-        start = apply_extensions(Cell.load(cell_name), extensions)
+        start = apply_extensions(apply_ocps(Cell.load(cell_name), ocps), extensions)
     out = paths.check_output_path(output, create=True)
     stem = out.name.removesuffix(".json").removesuffix(".bpx")
     summary_path = paths.summary_path(out)

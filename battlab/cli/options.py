@@ -90,4 +90,40 @@ def apply_extensions(cell: Any, specs: Sequence[str], isothermal: bool = False) 
     return cell
 
 
-__all__ = ["PHYSICS", "AliasChoice", "apply_extensions", "extension_option", "physics_option"]
+def ocp_option() -> Any:
+    """``--ocp E=FILE`` (repeatable): an electrode's open-circuit potential from a half-cell CSV."""
+    return click.option(
+        "--ocp",
+        "ocps",
+        multiple=True,
+        metavar="E=FILE",
+        help="Replace electrode E's open-circuit potential (E: n or p) by a half-cell curve: a CSV of stoichiometry "
+        "and potential vs Li/Li+ [V]; repeatable. E.g. p=nca_half_cell.csv.",
+    )
+
+
+def apply_ocps(cell: Any, specs: Sequence[str]) -> Any:
+    """``cell`` with the ``--ocp`` curves; a bad spec or file is one :class:`InputError` naming the option."""
+    from battlab.io.ocp import with_half_cell_ocp
+    from protocols.errors import InputError
+
+    for spec in specs:
+        electrode, eq, path = spec.partition("=")
+        if not eq or electrode.strip() not in ("n", "p") or not path.strip():
+            raise InputError(f"--ocp {spec!r}: expected E=FILE with E n or p, e.g. p=nca_half_cell.csv")
+        try:
+            cell = with_half_cell_ocp(cell, electrode.strip(), path.strip())
+        except InputError as exc:
+            raise InputError(f"--ocp {spec!r}: {exc}") from None
+    return cell
+
+
+__all__ = [
+    "PHYSICS",
+    "AliasChoice",
+    "apply_extensions",
+    "apply_ocps",
+    "extension_option",
+    "ocp_option",
+    "physics_option",
+]

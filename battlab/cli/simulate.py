@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from battlab.cli.options import apply_extensions, extension_option
+from battlab.cli.options import apply_extensions, apply_ocps, extension_option, ocp_option
 from protocols.errors import InputError
 from protocols.profile import Profile
 
@@ -36,6 +36,7 @@ if TYPE_CHECKING:
     help="Comma-separated parameters for dV/dθ̄ (e.g. R_s_n,D_s_n,contact_resistance.R_c) or 'all'.",
 )
 @extension_option()
+@ocp_option()
 @click.option(
     "-o",
     "--output",
@@ -53,6 +54,7 @@ def simulate(
     v_limits: str | None,
     sens: str,
     extensions: tuple[str, ...],
+    ocps: tuple[str, ...],
     output: str,
 ) -> None:
     """Simulate CELL (a built-in name or a BPX file) under PROFILE.
@@ -66,7 +68,7 @@ def simulate(
     from battlab.simulation import simulate as run
 
     check_output_path(output)
-    c = apply_extensions(Cell.load(cell), extensions, isothermal)
+    c = apply_extensions(apply_ocps(Cell.load(cell), ocps), extensions, isothermal)
     prof = _profile(profile)
     if soc0 is None:
         soc0 = prof.soc0 if prof.soc0 is not None else 1.0

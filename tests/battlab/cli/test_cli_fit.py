@@ -288,3 +288,19 @@ def test_fit_says_which_noise_model_weighed_it_and_takes_one_from_a_file(tmp_pat
     r = CliRunner().invoke(main, [*args, "--noise", str(tmp_path / "bad.toml"), "-o", str(tmp_path / "b.json")])
     assert r.exit_code == 2 and "bad.toml: model: missing" in r.output and "Traceback" not in r.output
     assert not (tmp_path / "b.json").exists()
+
+
+def test_an_ocp_curve_that_is_not_one_is_one_line_before_any_data_is_read(tmp_path) -> None:
+    """``battlab fit --ocp``: a wrong electrode or a broken half-cell file is one line naming the option and the
+    file, exit code not 0, nothing written."""
+    curve = tmp_path / "p.csv"
+    curve.write_text("sto,ocp\n0.1,4.1\n0.2,x\n0.3,4.0\n0.4,3.9\n0.5,3.8\n")
+    data = tmp_path / "data.csv"
+    data.write_text("Test Time / s,Current / A,Voltage / V\n0,0,3.7\n1,0,3.7\n")
+    out = tmp_path / "fit.bpx.json"
+    for spec, what in ((f"q={curve}", "expected E=FILE"), (f"p={curve}", "line 3: not two numbers")):
+        result = CliRunner().invoke(main, ["fit", str(data), "--cell", "nca18650", "--ocp", spec, "-o", str(out)])
+        assert result.exit_code != 0
+        text = result.output.strip()
+        assert len(text.splitlines()) == 1 and "--ocp" in text and what in text, text
+    assert not out.exists()

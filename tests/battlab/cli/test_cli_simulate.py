@@ -322,3 +322,22 @@ def test_v_limits_follow_logged_excursions_and_T0_sets_the_start(tmp_path: Path)
     assert df["Surface Temperature T1 / degC"].iloc[-1] < 33.0  # cooling towards the 25 degC ambient
     bad = invoke(*base, "--v-limits", "4.5", "-o", str(tmp_path / "c.csv"))
     assert bad.exit_code == 2 and "expected MIN,MAX" in bad.output
+
+
+def test_ocp_option_matches_the_api(nca18650: Cell, profile: Profile, profile_csv: Path, tmp_path: Path) -> None:
+    """``--ocp p=FILE`` puts a half-cell curve into the cell as ``Cell.with_ocp`` does; a bad spec is one line."""
+    from battlab.io.ocp import with_half_cell_ocp
+
+    x = np.linspace(0.2, 0.99, 60)
+    curve = tmp_path / "p.csv"
+    curve.write_text("sto,ocp\n" + "\n".join(f"{a},{b + 0.01}" for a, b in zip(x, nca18650.fn("U_p", x), strict=True)))
+    out = tmp_path / "out.bdf.csv"
+    result = invoke("simulate", "nca18650", str(profile_csv), "--soc0", "0.5", "--ocp", f"p={curve}", "-o", str(out))
+    assert result.exit_code == 0, result.output
+    res = battlab.simulate(with_half_cell_ocp(nca18650, "p", curve), profile, soc0=0.5, ambient=298.15)
+    base = battlab.simulate(nca18650, profile, soc0=0.5, ambient=298.15)
+    table = pd.read_csv(out)
+    np.testing.assert_allclose(table["Voltage / V"], res.voltage, rtol=1e-9, atol=1e-12)
+    assert np.mean(table["Voltage / V"] - base.voltage) > 0.005  # the 10 mV higher curve is in
+    bad = invoke("simulate", "nca18650", str(profile_csv), "--ocp", f"q={curve}", "-o", str(tmp_path / "x.csv"))
+    assert bad.exit_code != 0 and "--ocp" in bad.output and len(bad.output.strip().splitlines()) == 1
