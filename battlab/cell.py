@@ -292,7 +292,7 @@ class Cell:
         """A new cell whose electrode ``"n"`` or ``"p"`` has the open-circuit potential ``curve`` (U vs Li/Li⁺ [V]
         over stoichiometry, e.g. a half-cell measurement: :func:`battlab.io.ocp.read_ocp_csv`). The curve must
         cover the electrode's stoichiometry window in the new cell (a table is flat beyond its ends: no OCP there);
-        ``source`` names it in that error."""
+        ``source`` names it in that error. The entropic coefficient dU/dT stays the cell's."""
         if electrode not in ("n", "p"):
             raise InputError(f"OCP electrode must be 'n' (negative) or 'p' (positive), got {electrode!r}")
         if not isinstance(curve, Table):
