@@ -16,6 +16,11 @@ from battlab.identify.experiments import Experiment
 from battlab.identify.informing import INFORMED_BY, one_ambient, rests_after_both_directions
 
 
+def cause_entry(cause: str, why: str, **extra: Any) -> dict[str, Any]:
+    """One cause the data cannot decide, as the summary lists it: why, and the experiment that would decide it."""
+    return {"cause": cause, "why": why, **extra, "kind": INFORMED_BY[cause][0], "experiment": INFORMED_BY[cause][1]}
+
+
 def untestable(train: Sequence[Experiment], named: str | None, i_rest: float) -> list[dict[str, Any]]:
     """Causes this diagnosis cannot decide on whatever their size (so "no cause" says nothing about them), with the
     experiment that would: the double layer, never score-tested (its voltage is not differentiable at C_dl = 0;
@@ -29,11 +34,7 @@ def untestable(train: Sequence[Experiment], named: str | None, i_rest: float) ->
         out["thermal"] = "one ambient temperature: activation energies are seen only through a change of temperature"
     if not rests_after_both_directions(train, i_rest):
         out["hysteresis"] = "no rest after a charge and after a discharge"
-    return [
-        {"cause": c, "why": w, "kind": INFORMED_BY[c][0], "experiment": INFORMED_BY[c][1]}
-        for c, w in out.items()
-        if c != named
-    ]
+    return [cause_entry(c, w) for c, w in out.items() if c != named]
 
 
 def detectable_sizes(
@@ -87,13 +88,11 @@ def undetectable(
             for n, v in typ.items()
         )
         out.append(
-            {
-                "cause": cause,
-                "why": f"too small to see on these data: {below} goes undetected",
-                "smallest_detectable": {n: det[n] for n in typ},
-                "typical": typ,
-                "kind": INFORMED_BY[cause][0],
-                "experiment": INFORMED_BY[cause][1],
-            }
+            cause_entry(
+                cause,
+                f"too small to see on these data: {below} goes undetected",
+                smallest_detectable={n: det[n] for n in typ},
+                typical=typ,
+            )
         )
     return out

@@ -47,7 +47,6 @@ from battlab.diagnose import testability
 from battlab.diagnose.report import Confirmation, DiagnosisReport
 from battlab.identify.data_files import Ambient, ambient_of, check_ambient_keys, load_all
 from battlab.identify.experiments import Experiment
-from battlab.identify.informing import INFORMED_BY
 from protocols.errors import InputError
 from protocols.profile import Profile
 
@@ -287,7 +286,7 @@ def _cannot_tell(
                     )
     else:
         out = {}
-    return [{"cause": c, "why": w, "kind": INFORMED_BY[c][0], "experiment": INFORMED_BY[c][1]} for c, w in out.items()]
+    return [testability.cause_entry(c, w) for c, w in out.items()]
 
 
 def diagnose(
