@@ -15,8 +15,10 @@ import numpy as np
 
 from battlab import parameters
 from battlab.cell import Cell
+from battlab.identify.forward import ForwardModel
 from battlab.model.extensions import CATALOG
 from battlab.simulation import simulate
+from battlab.threads import thread_map
 from protocols.profile import Profile
 
 #: causes tested by default: every catalog extension whose voltage is differentiable at "off" (the double layer's is
@@ -74,14 +76,15 @@ def extension_directions(
     base = cell
     for key in list(cell.extensions):
         base = base.without_extension(key)
-    out = []
-    for key in causes or DEFAULT_CAUSES:
-        if isothermal and CATALOG[key].requires_thermal:
-            continue
-        ext = base.with_extension(key)
+    keys = [k for k in (causes or DEFAULT_CAUSES) if not (isothermal and CATALOG[k].requires_thermal)]
+    models = {k: base.with_extension(k) for k in keys}
+    # the models are built here, one after the other; their simulations then run side by side
+    compiled = all(ForwardModel(m, isothermal=isothermal).thread_safe for m in models.values())
+
+    def one(key: str) -> Directions:
         names = tuple(p.qualified for p in parameters.EXTENSIONS[key])
         res = simulate(
-            ext,
+            models[key],
             profile,
             soc0=soc0,
             ambient=ambient,
@@ -92,5 +95,6 @@ def extension_directions(
         )
         sens = res.sensitivities
         p = len(base_names)
-        out.append(Directions(key, sens[:, :p], sens[:, p:], names, res.voltage))
-    return out
+        return Directions(key, sens[:, :p], sens[:, p:], names, res.voltage)
+
+    return thread_map(one, keys, None if compiled else 1)

@@ -47,6 +47,7 @@ from battlab.diagnose import testability
 from battlab.diagnose.report import Confirmation, DiagnosisReport
 from battlab.identify.data_files import Ambient, ambient_of, check_ambient_keys, load_all
 from battlab.identify.experiments import Experiment
+from battlab.threads import thread_map
 from protocols.errors import InputError
 from protocols.profile import Profile
 
@@ -173,29 +174,36 @@ def _held_out_rmse(fm: Any, cell: Cell, parts: Sequence[Part]) -> float:
 
 def _confirm(
     cell: Cell,
-    cause: str | None,
+    causes: Sequence[str | None],
     base_names: Sequence[str],
     train: Sequence[Experiment],
     parts: Sequence[Part],
     max_iter: int,
-) -> Confirmation:
-    """Fit ``base_names`` (and ``cause``'s extension parameters) on ``train``; the held-out RMSE."""
+) -> list[Confirmation]:
+    """Per cause (None: the base model alone): fit ``base_names`` and the cause's extension parameters on
+    ``train``, and the held-out RMSE. The models are built one after the other, their fits then run side by side."""
     from battlab.identify.fit import Options, fit
     from battlab.identify.forward import ForwardModel
 
-    model = cell if cause is None else cell.with_extension(cause)
-    names = tuple(base_names) + (() if cause is None else tuple(p.qualified for p in parameters.EXTENSIONS[cause]))
-    fm = ForwardModel(model, v_margin=V_MARGIN)
-    res = fit(model, list(train), names, options=Options(max_nfev=max_iter), forward=fm)
-    rmse_train = float(np.sqrt(np.mean([v**2 for v in res.rmse_mV.values()]))) if res.rmse_mV else float("nan")
-    return Confirmation(
-        cause or "base",
-        names,
-        {n: float(res.cell.value(n)) for n in names},
-        rmse_train,
-        _held_out_rmse(fm, res.cell, parts),
-        bool(res.convergence.converged),
-    )
+    models = [cell if c is None else cell.with_extension(c) for c in causes]
+    fms = [ForwardModel(m, v_margin=V_MARGIN) for m in models]
+    compiled = all(fm.thread_safe for fm in fms)
+
+    def one(k: int) -> Confirmation:
+        cause, model, fm = causes[k], models[k], fms[k]
+        names = tuple(base_names) + (() if cause is None else tuple(p.qualified for p in parameters.EXTENSIONS[cause]))
+        res = fit(model, list(train), names, options=Options(max_nfev=max_iter), forward=fm)
+        rmse_train = float(np.sqrt(np.mean([v**2 for v in res.rmse_mV.values()]))) if res.rmse_mV else float("nan")
+        return Confirmation(
+            cause or "base",
+            names,
+            {n: float(res.cell.value(n)) for n in names},
+            rmse_train,
+            _held_out_rmse(fm, res.cell, parts),
+            bool(res.convergence.converged),
+        )
+
+    return thread_map(one, range(len(causes)), None if compiled else 1)
 
 
 def _named(base_fit: Confirmation, confirmations: Sequence[Confirmation]) -> str | None:
@@ -450,11 +458,9 @@ def diagnose(
     start_rmse = _held_out_rmse(fm, base, parts)
     relevant = refit_names(base, J, r_raw, w, base_names)
     if passing:
-        say(f"fitting the base model's {', '.join(relevant)} on the training part")
-        base_fit = _confirm(base, None, relevant, train, parts, max_iter)
-        for s in _candidates(passing, twins):
-            say(f"fitting {s.cause} on the training part")
-            confirmations.append(_confirm(base, s.cause, relevant, train, parts, max_iter))
+        candidates = [s.cause for s in _candidates(passing, twins)]
+        say(f"fitting the base model's {', '.join(relevant)}, and with {', '.join(candidates)}, on the training part")
+        base_fit, *confirmations = _confirm(base, [None, *candidates], relevant, train, parts, max_iter)
         cause = _named(base_fit, confirmations)
         best = min(confirmations, key=lambda c: c.rmse_held_out_mV)
         chosen = next(c for c in confirmations if c.cause == cause) if cause else best
@@ -498,12 +504,18 @@ def diagnose(
         verdict += "; too small to see on these data: " + ", ".join(c["cause"] for c in undetectable)
     also: list[dict[str, Any]] = []
     if also_fit:
-        ref = base_fit or _confirm(base, None, relevant, train, parts, max_iter)
-        done = {c.cause: c for c in confirmations}
+        done: dict[str | None, Confirmation] = {c.cause: c for c in confirmations}
+        if base_fit is not None:
+            done[None] = base_fit
         for k in also_fit:
             parameters.extension_parameters(k)
-            say(f"fitting {k} on the training part (also_fit)")
-            c = done.get(k) or _confirm(base, k, relevant, train, parts, max_iter)
+        todo = [k for k in dict.fromkeys((None, *also_fit)) if k not in done]
+        if todo:
+            say(f"fitting {', '.join(k or 'the base model' for k in todo)} on the training part (also_fit)")
+            done.update(zip(todo, _confirm(base, todo, relevant, train, parts, max_iter), strict=True))
+        ref = done[None]
+        for k in also_fit:
+            c = done[k]
             also.append(
                 {
                     **c.__dict__,

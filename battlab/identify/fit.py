@@ -13,7 +13,6 @@ Group-wise and cumulative (docs/decisions.md): stage k fits the parameters of gr
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -30,6 +29,7 @@ from battlab.identify.experiments import Experiment
 from battlab.identify.forward import ForwardModel
 from battlab.identify.gauss_newton import GaussNewtonStep, bounded_gauss_newton
 from battlab.identify.problem import Problem, abs_errors_mV, rmse_mV
+from battlab.threads import cores
 from protocols.errors import InputError
 
 #: The paper's Table 9 groups (the design module's groups replace them when a plan gives its own).
@@ -215,8 +215,7 @@ def fit(
     theta_full = start.theta_bar()
     if len(theta_full) != len(getattr(fm, "names", theta_full)):
         raise InputError(f"fit: the start cell's extensions {list(start.extensions)} differ from the model's")
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    n_workers = min(opt.workers or cores, len(experiments)) if fm.thread_safe else 1
+    n_workers = min(opt.workers or cores(), len(experiments)) if fm.thread_safe else 1
     pool = ThreadPoolExecutor(n_workers) if n_workers > 1 else None
     try:
         return _fit(cell, experiments, names, opt, fm, start, stage, soc_span, theta_full, pool, ageing)

@@ -17,6 +17,7 @@ face of both: settings, schedule, state and the two runners.
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -61,17 +62,20 @@ __all__ = [
 
 
 _NATIVE: dict[tuple, object] = {}
+_NATIVE_BUILD = threading.Lock()
 
 
 def native_stepper(cell: Cell, mesh: Mesh, isothermal: bool):  # -> NativeStepper
-    """The compiled stepper of (cell, mesh, option set), built once per process (and cached on disk)."""
+    """The compiled stepper of (cell, mesh, option set), built once per process (and cached on disk); threads
+    asking at once get the same one (built on one thread: CasADi's symbolic work is not thread-safe)."""
     from battlab.model.extensions import ModelOptions
     from battlab.model.native import NativeStepper
 
     key = (cell.static_hash(), mesh, ModelOptions.of(cell, isothermal))
-    if key not in _NATIVE:
-        _NATIVE[key] = NativeStepper(DFN(cell, mesh, isothermal=isothermal))
-    return _NATIVE[key]
+    with _NATIVE_BUILD:
+        if key not in _NATIVE:
+            _NATIVE[key] = NativeStepper(DFN(cell, mesh, isothermal=isothermal))
+        return _NATIVE[key]
 
 
 def _no_right_limit(
