@@ -145,6 +145,22 @@ def test_cells_differing_in_identified_parameters_share_the_compiled_model(cell:
     assert cell.with_values(L_n=8e-5).static_hash() != cell.static_hash()
 
 
+def test_a_failing_compiler_is_named_and_the_library_never_half_written(
+    cell: battlab.Cell, tmp_path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The library is built from separate units (compiled side by side, then linked): a compiler that fails says
+    so in one line (NativeUnavailable: the CasADi stepper takes over) and leaves nothing in the cache; a good build
+    leaves one library there, no partial file."""
+    monkeypatch.setenv("BATTLAB_CACHE", str(tmp_path))
+    monkeypatch.setenv("CC", "false")
+    with pytest.raises(native.NativeUnavailable, match="C build failed: .*false exited with code 1"):
+        native.NativeStepper(DFN(cell, Mesh()))
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.delenv("CC")
+    stepper = native.NativeStepper(DFN(cell, Mesh()))
+    assert [p.suffix for p in tmp_path.iterdir()] == [".so"] and stepper.compile_seconds > 0
+
+
 def test_live_cell_retries_a_failed_step_with_smaller_steps(
     cell: battlab.Cell, monkeypatch: pytest.MonkeyPatch
 ) -> None:
