@@ -183,7 +183,8 @@ def test_death_of_the_tester_at_1x_stops_the_run_within_a_second(
     tester: Tester, home: Path, tmp_path: Path, death: str
 ) -> None:
     """SIGKILL: the tester's process gone (connections closed). SIGSTOP: a hung tester (nothing answers); once it
-    runs again it executes the output-off command the runner sent."""
+    runs again its output is off: by the output-off command the runner sent if its closed link still delivers it
+    (a reset connection may drop it), else by the 3 s watchdog the runner programmed."""
     runner, out = start(tester, home, tmp_path)
     assert wait_until(when_logged(out, 4.0, runner), timeout_s=60.0, poll_s=0.05)
     time.sleep(0.4)  # between two samples
@@ -206,6 +207,7 @@ def test_death_of_the_tester_at_1x_stops_the_run_within_a_second(
     assert Catalog().list()[0].status == "aborted"
     if death == "SIGSTOP":
         tester.proc.send_signal(signal.SIGCONT)
+        time.sleep(4.5)  # no I/O meanwhile: a query would feed the watchdog
         probe = tester.probe()
         try:
             assert not probe.get("output")
