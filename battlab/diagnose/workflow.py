@@ -459,7 +459,8 @@ def diagnose(
     relevant = refit_names(base, J, r_raw, w, base_names)
     if passing:
         candidates = [s.cause for s in _candidates(passing, twins)]
-        say(f"fitting the base model's {', '.join(relevant)}, and with {', '.join(candidates)}, on the training part")
+        also_with = f" and with {', '.join(candidates)}" if candidates else ""
+        say(f"fitting the base model's {', '.join(relevant)}{also_with} on the training part")
         base_fit, *confirmations = _confirm(base, [None, *candidates], relevant, train, parts, max_iter)
         cause = _named(base_fit, confirmations)
         best = min(confirmations, key=lambda c: c.rmse_held_out_mV)

@@ -36,6 +36,7 @@ from scipy.sparse.linalg import splu
 from battlab.model.dfn import DFN
 from battlab.model.plans import AdaptiveControl, SamplePlan, StepPlan
 from battlab.model.state import guess_algebraic, initial_state
+from battlab.threads import thread_map
 
 log = logging.getLogger("battlab.model")
 
@@ -506,8 +507,6 @@ def _last_line(proc: subprocess.CompletedProcess[str], cc: str) -> str:
 def _compile(units: list[tuple[str, str]], lib_path: Path) -> None:
     """Build the shared library ``lib_path`` from ``units``: each unit compiled on its own, as many at once as
     this process has cores (largest first), then linked; the library appears whole or not at all."""
-    from battlab.threads import thread_map
-
     cc = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
     if cc is None:
         raise NativeUnavailable("no C compiler found (set CC)")
