@@ -1,9 +1,12 @@
-"""Shared test configuration: where the shared measurement data lives (``../shared/data`` beside the checkout)."""
+"""Shared test configuration: where the shared measurement data lives (``../shared/data`` beside the checkout), and
+the reference packages the tests compare against (:func:`reference`)."""
 
 from __future__ import annotations
 
+import importlib
 import os
 from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING
 
 import pytest
@@ -18,6 +21,32 @@ def pytest_configure(config: pytest.Config) -> None:
     """In CI the data must be there: a test that skips for want of it would hide a failure."""
     if os.environ.get("CI") and not DATA.is_dir():
         raise pytest.UsageError(f"CI: shared data not found at {DATA} (set BATTLAB_DATA)")
+
+
+#: the reference packages some tests compare against (top-level import name), and how to install each
+REFERENCES = {
+    "pybamm": 'PyBaMM, the reference DFN: pip install -e ".[test]"',
+    "beep": "TRI's BEEP, the reference schedule-file readers: pip install --no-deps beep==2026.2.7",
+    "bdf": 'batterydf, the reference Battery Data Format validator: pip install -e ".[test]"',
+}
+
+
+def reference(module: str) -> ModuleType:
+    """Import ``module`` of a reference package (a key of :data:`REFERENCES`, e.g. ``"beep.protocol.biologic"``).
+
+    Without it the test (or, called at module level, the whole module) is skipped on a developer's machine, and
+    fails in CI (the environment variable ``CI`` set): a comparison that silently loses its reference checks
+    nothing. Import with ``from tests.conftest import reference`` (pytest runs from the checkout)."""
+    top = module.partition(".")[0]
+    if top not in REFERENCES:
+        raise KeyError(f"{top!r} is not a reference package of the tests ({', '.join(REFERENCES)})")
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        why = f"{module} cannot be imported ({exc}); {REFERENCES[top]}"
+        if os.environ.get("CI"):
+            pytest.fail(f"CI: {why}", pytrace=False)
+        pytest.skip(why, allow_module_level=True)
 
 
 @pytest.fixture(scope="session")

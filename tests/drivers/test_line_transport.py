@@ -15,7 +15,9 @@ from drivers.transport import LineAdapter, port_lock, with_retries
 
 
 class TinyServer:
-    """Replies ``echo:<line>``; ``silent`` → no reply; ``close`` → closes the connection."""
+    """Replies ``echo:<line>``; ``silent`` → no reply; ``late`` → ``late-reply`` once ``release`` is set (after the
+    host gave up on it; ``sent_late`` then); ``close`` → closes the connection. ``heard`` is set when ``silent`` or
+    ``late`` arrives."""
 
     def __init__(self) -> None:
         self.sock = socket.socket()
@@ -25,6 +27,9 @@ class TinyServer:
         self.port = self.sock.getsockname()[1]
         self.stop = threading.Event()
         self.connections = 0
+        self.heard = threading.Event()
+        self.release = threading.Event()
+        self.sent_late = threading.Event()
         self.thread = threading.Thread(target=self.run, daemon=True)
         self.thread.start()
 
@@ -51,6 +56,17 @@ class TinyServer:
             while b"\n" in buf:
                 line, buf = buf.split(b"\n", 1)
                 if line == b"silent":
+                    self.heard.set()
+                    continue
+                if line == b"late":
+                    self.heard.set()
+                    self.release.wait(5.0)
+                    try:
+                        conn.sendall(b"late-reply\n")
+                    except OSError:  # the host closed this connection already
+                        pass
+                    finally:
+                        self.sent_late.set()
                     continue
                 if line == b"close":
                     conn.close()
@@ -85,14 +101,29 @@ def test_query_strips_terminators_and_reads_split_replies(server: TinyServer) ->
 
 
 def test_timeout_is_bounded_and_names_the_command(server: TinyServer) -> None:
+    """The query was heard and never answered: a timeout naming the command; the connection works after recover."""
     a = LineAdapter(f"socket://127.0.0.1:{server.port}", name="dut", timeout_s=0.2)
-    t0 = time.monotonic()
     with pytest.raises(CommunicationError, match="dut: no reply to 'silent' within 0.2 s"):
         a.query("silent")
-    assert 0.15 < time.monotonic() - t0 < 1.0
+    assert server.heard.is_set()  # sent and received: the error is the missing reply, not the link
     a.recover()  # reconnects: the connection works again
     assert a.query("again") == "echo:again"
     assert server.connections == 2
+    a.close()
+
+
+def test_a_reply_after_the_timeout_is_not_taken_for_the_next_one(server: TinyServer) -> None:
+    """The reply comes only after the host gave up on it (the server waits for that event): recover drops it with
+    the old connection, and the next query reads its own reply."""
+    a = LineAdapter(f"socket://127.0.0.1:{server.port}", name="dut", timeout_s=0.2)
+    with pytest.raises(CommunicationError, match="dut: no reply to 'late' within 0.2 s"):
+        a.query("late")
+    assert server.heard.is_set()
+    a.recover()
+    server.release.set()  # the late reply goes out on the old connection
+    assert server.sent_late.wait(5.0)
+    assert a.query("again") == "echo:again"
+    assert a.query("more") == "echo:more"
     a.close()
 
 

@@ -6,7 +6,7 @@ back out; that file must equal ours byte for byte, so no line of ours was left u
 
 BEEP is a test-only dependency installed without its own dependencies (its ``msgpack-python`` requirement
 overwrites the ``msgpack`` package that dask.distributed needs): ``pip install --no-deps beep==2026.2.7``; the
-``test`` extra carries the packages its protocol readers import. Without BEEP these tests skip.
+``test`` extra carries the packages its protocol readers import. Without BEEP these tests skip, and fail in CI.
 """
 
 from __future__ import annotations
@@ -19,7 +19,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-pytest.importorskip("beep.protocol.biologic", reason="BEEP is not installed: pip install --no-deps beep==2026.2.7")
+from tests.conftest import reference
+
+reference("beep.protocol.biologic")
 
 from beep.protocol.arbin import Schedule  # noqa: E402
 from beep.protocol.biologic import Settings  # noqa: E402

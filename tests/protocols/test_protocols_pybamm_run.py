@@ -10,11 +10,12 @@ import pytest
 from protocols import ConstantCurrent, Direction, ProfileStep, Protocol, PulseSpec, Rest, pulse_profile
 from protocols.export import Format, export
 from protocols.export.pybamm import RAMP_S, load_module
+from tests.conftest import reference
 
 
 @pytest.mark.slow
 def test_exported_module_runs_in_pybamm(tmp_path: Path) -> None:
-    pybamm = pytest.importorskip("pybamm")
+    pybamm = reference("pybamm")
     profile = pulse_profile(PulseSpec(10.0, 1, 60.0, Direction.BOTH), charge_ah=0.02, id="short", soc0=0.6)
     proto = Protocol(
         "pybamm check",

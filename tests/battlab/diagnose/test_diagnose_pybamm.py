@@ -10,7 +10,6 @@ only the null and the hysteresis run here (about 4 min on 2 loaded cores); the b
 
 from __future__ import annotations
 
-import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -19,10 +18,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-if os.environ.get("CI"):
-    import pybamm  # noqa: F401  a test dependency: in CI its absence is a failure, not a skip
-else:
-    pytest.importorskip("pybamm")
+from tests.conftest import reference
+
+reference("pybamm")
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
 import pybamm_effects as pe  # noqa: E402
@@ -56,7 +54,8 @@ def cell_file(tmp_path_factory: pytest.TempPathFactory, nmc_bpx: Path) -> Path:
 
 def test_pybamm_is_fed_the_profile_exactly_and_matches_battlab_within_half_a_millivolt(made, cell_file) -> None:
     """PyBaMM's discharge capacity equals the integral of the zero-order-hold current, and its plain DFN is within
-    0.5 mV RMSE of battlab's on the same BPX file (the null case's model difference, above the noise)."""
+    0.5 mV RMSE of battlab's on the same BPX file (measured 0.35 mV: the null case's model difference, above the
+    noise). An upper bound only: battlab closer to PyBaMM passes."""
     import battlab
     from battlab import Cell
 
@@ -66,7 +65,7 @@ def test_pybamm_is_fed_the_profile_exactly_and_matches_battlab_within_half_a_mil
     res = battlab.simulate(cell, pe.profile(float(cell["Q_nom"])), soc0=pe.SOC0, ambient=pe.AMBIENT_K)
     assert res.voltage.size == truth.voltage.size
     rmse = 1e3 * float(np.sqrt(np.mean((res.voltage - truth.voltage) ** 2)))
-    assert 0.1 < rmse < 0.5, rmse
+    assert rmse < 0.5, rmse
     assert abs(float(res.T_core.max()) - float(truth.temperature.max())) < 0.5  # K: cooled, a 3 K rise
 
 
@@ -100,7 +99,7 @@ def test_the_diagnosis_of_pybamm_data_names_the_hidden_cause_or_nothing(case, ma
     summary, _ = pe.diagnose_cli(csv, cell_file, tmp_path / "report")
     s2 = summary["residual"]["s2"]
     # the noise level is the log's own: the null's 0.35 mV model difference is a few times the noise (measured s²
-    # 5.1), a 10 mV hysteresis far above it (135)
-    assert (1.0 < s2 < 20.0) if case == "null" else (s2 > 20.0), s2
+    # 5.1; bounded above only, as a battlab closer to PyBaMM lowers it), a 10 mV hysteresis far above it (135)
+    assert (s2 < 20.0) if case == "null" else (s2 > 20.0), s2
     verdict = pe.judge(pe.CASES[case], summary)
     assert verdict in ("right", "honest"), (verdict, summary["cause"], summary["ranking"][:3], summary["verdict"])

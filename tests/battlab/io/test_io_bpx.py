@@ -18,6 +18,7 @@ from battlab.cell import KEYS, F
 from battlab.functions import Expr, Table, evaluate
 from battlab.io.bpx import EXT, read_bpx, write_bpx
 from protocols.errors import InputError
+from tests.conftest import reference
 
 DATA = Path(os.environ.get("BATTLAB_DATA", Path(__file__).resolve().parents[4] / "shared" / "data")) / "bpx"
 FILES = [
@@ -317,7 +318,7 @@ def test_unexportable_metadata(tmp_path: Path) -> None:
 @needs_data
 @pytest.mark.parametrize("soc", [0.2, 0.5, 0.9])
 def test_stoichiometries_match_pybamm_create_from_bpx(soc: float) -> None:
-    pybamm = pytest.importorskip("pybamm")
+    pybamm = reference("pybamm")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         param = pybamm.ParameterValues.create_from_bpx(NMC, target_soc=soc)
@@ -334,7 +335,7 @@ def test_stoichiometries_match_pybamm_create_from_bpx(soc: float) -> None:
 
 def test_pybamm_reads_our_export_as_the_same_cell(tmp_path: Path) -> None:
     """Exchange current, OCP, diffusivities, conductivity, eps_s and the lumped thermal products agree."""
-    pybamm = pytest.importorskip("pybamm")
+    pybamm = reference("pybamm")
     cell = Cell.load("nca18650-true")
     path = write_bpx(cell, tmp_path / "true.json")
     with warnings.catch_warnings():

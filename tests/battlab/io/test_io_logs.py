@@ -17,6 +17,7 @@ from battlab.io.bdf import read_bdf_csv, write_bdf_csv
 from battlab.io.checks import DataWarning, check_data, detect_sign
 from battlab.io.data import CURRENT, TIME, VOLTAGE, LoggedData
 from protocols.errors import InputError
+from tests.conftest import reference
 
 COLS = [TIME, VOLTAGE, CURRENT, "Surface Temperature T1 / degC", "Step Count / 1"]
 
@@ -127,7 +128,7 @@ def test_a_truncated_log_is_an_input_error_naming_the_file_not_a_hang(tmp_path, 
 
 
 def test_bdf_csv_round_trip_is_valid_bdf(tmp_path) -> None:
-    bdf = pytest.importorskip("bdf")
+    bdf = reference("bdf")
     data = LoggedData("x", {c: _rows(0, 20)[:, k] for k, c in enumerate(COLS)}, {"soc0": 0.5, "cell": "c"})
     path = write_bdf_csv(data, tmp_path / "x.bdf.csv")
     rep = bdf.validate(str(path))

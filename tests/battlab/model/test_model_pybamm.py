@@ -9,7 +9,6 @@ battlab reports right limits at the samples, so PyBaMM is read at t_k + 1 µs.
 
 from __future__ import annotations
 
-import os
 import sys
 import warnings
 from pathlib import Path
@@ -22,11 +21,9 @@ import battlab
 from battlab import Cell
 from battlab.model.mesh import Mesh
 from protocols import Profile
+from tests.conftest import reference
 
-if os.environ.get("CI"):
-    import pybamm  # a test dependency: in CI its absence is a failure, not a skip
-else:
-    pybamm = pytest.importorskip("pybamm")
+pybamm = reference("pybamm")
 
 pytestmark = pytest.mark.slow
 

@@ -106,6 +106,7 @@ def test_a_short_delay_needs_no_retry(make_lab: Callable[..., VirtualLab]) -> No
     lab.scpi_faults.schedule(Fault.DELAY, 3)
     for _ in range(3):
         cyc.measure()
+    assert lab.scpi_faults.injected[Fault.DELAY] == 3  # every reply was held back, and none needed a retry
     cyc.close()
 
 
