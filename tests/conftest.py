@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib
 import os
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING
@@ -13,6 +14,7 @@ import pytest
 
 if TYPE_CHECKING:
     from battlab import Cell
+    from battlab.report.browser import PageCheck
 
 DATA = Path(os.environ.get("BATTLAB_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
@@ -47,6 +49,36 @@ def reference(module: str) -> ModuleType:
         if os.environ.get("CI"):
             pytest.fail(f"CI: {why}", pytrace=False)
         pytest.skip(why, allow_module_level=True)
+
+
+@pytest.fixture
+def chromium() -> str:
+    """Chromium on PATH; in CI its absence is a failure (.ci/run installs it), elsewhere a skip."""
+    from battlab.report.browser import find_chromium
+
+    exe = find_chromium()
+    if exe is None:
+        if os.environ.get("CI"):
+            pytest.fail("CI: chromium is not installed (.ci/run installs Debian's chromium)")
+        pytest.skip("chromium not installed (apt-get install chromium)")
+    return exe
+
+
+@pytest.fixture
+def open_elsewhere(
+    chromium: str, tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch
+) -> Callable[[Path], PageCheck]:
+    """``open_elsewhere(page)``: ``page`` rendered in headless Chromium from a fresh working directory (not the one
+    that wrote it, so a figure path relative to the writer's directory fails to load), with its screenshot beside
+    the page; a :class:`battlab.report.browser.PageCheck`."""
+    from battlab.report.browser import check_page
+
+    def check(page: Path) -> PageCheck:
+        page = Path(page).resolve()
+        monkeypatch.chdir(tmp_path_factory.mktemp("elsewhere"))
+        return check_page(page, page.with_suffix(".png"))
+
+    return check
 
 
 @pytest.fixture(scope="session")

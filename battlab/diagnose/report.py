@@ -4,11 +4,41 @@ text, ``summary.json`` as DESIGN.md's contract, the static HTML page with its PN
 from __future__ import annotations
 
 import json
+import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from battlab.identify.workflow import json_default
+
+
+def headline(summary: Mapping[str, Any]) -> tuple[str, str]:
+    """The verdict in one line and its colour (``"good"`` green, ``"warn"`` amber, ``"bad"`` red), from the summary's
+    numbers: ``cause``, ``cannot_tell`` and ``residual_over_noise`` (the mean squared residual over the data's own
+    noise variance, s²). Green only when no cause is named, the data leave none undecided and s² is at most
+    :data:`battlab.diagnose.workflow.S2_REFIT`; red when a cause is named or s² is above that (the model is wrong
+    whatever was named); amber when the data cannot decide or their noise level is unknown."""
+    from battlab.diagnose.workflow import S2_REFIT
+
+    cause = summary.get("cause")
+    s2 = summary.get("residual_over_noise")
+    known = isinstance(s2, (int, float)) and math.isfinite(s2)
+    noise = f"residual {s2:.3g} × the noise level" if known else "noise level unknown"
+    undecided = ", ".join(c["cause"] for c in summary.get("cannot_tell", []))
+    cannot = f"; cannot tell {undecided} on these data" if undecided else ""
+    if cause:
+        return f"cause: {cause} ({noise}){cannot}", "bad"
+    if known and s2 > S2_REFIT:
+        return f"no cause named, but the model is wrong here: {noise}{cannot}", "bad"
+    if undecided or not known:
+        return f"no cause named ({noise}){cannot}", "warn"
+    return f"no significant discrepancy among the causes tested ({noise})", "good"
+
+
+def untestable_causes(summary: Mapping[str, Any]) -> set[str]:
+    """The causes these data cannot test (``untestable``): never shown as passing their score test."""
+    return {c["cause"] for c in summary.get("untestable", [])}
 
 
 @dataclass
@@ -46,12 +76,14 @@ class DiagnosisReport:
             f"{100 * a['slow_fraction']:.0f} % of its power below 1/600 Hz",
             f"score tests (threshold p < {s['threshold']['p_value']:.2g}; LM/dof, block variance):",
         ]
+        untestable = untestable_causes(s)
         for row in s["ranking"]:
-            mark = "*" if row["passes"] else " "
+            mark = "*" if row["passes"] and row["cause"] not in untestable else " "
             lines.append(
                 f" {mark} {row['cause']:<20} {row['score']:10.3g}  dof {row['dof']}  p {row['p_value']:.2g}"
                 f"  ({100 * row['projected']:.0f} % not mimicked by the base"
                 + (f"; close to {', '.join(row['mimicked_by'])})" if row["projected"] < 0.05 else ")")
+                + ("  not testable here" if row["cause"] in untestable else "")
             )
         for a_, b_, c in s["indistinguishable"]:
             lines.append(f"   {a_} and {b_} are indistinguishable on these data (|cos| {c:.2f})")
@@ -64,6 +96,7 @@ class DiagnosisReport:
             lines.append(f"held-out RMSE of the cell: {g['rmse_before_mV']:.2f} mV (no cause passed: nothing fitted)")
         cause = s["cause"]
         lines.append(f"cause: {cause} ({s['verdict']})" if cause else f"cause: none ({s['verdict']})")
+        lines.append(f"verdict: {headline(s)[0]}")
         for c in s.get("cannot_tell", []):
             lines.append(f"cannot tell: {c['cause']}: {c['why']}; would tell: {c['kind']} profile, {c['experiment']}")
         for c in s.get("untestable", []):
@@ -94,8 +127,19 @@ class DiagnosisReport:
             html.Figure(figures.whiteness(self.analysis, out / "whiteness.png"), "autocorrelation and spectrum"),
         ]
         s = self.summary
-        verdict = f"cause: {s['cause']}" if s["cause"] else "no significant discrepancy"
-        rows = [[r["cause"], r["score"], r["dof"], r["p_value"], r["projected"], r["passes"]] for r in s["ranking"]]
+        verdict, tone = headline(s)
+        untestable = untestable_causes(s)
+        rows = [
+            [
+                r["cause"],
+                r["score"],
+                r["dof"],
+                r["p_value"],
+                r["projected"],
+                "not testable here" if r["cause"] in untestable else r["passes"],
+            ]
+            for r in s["ranking"]
+        ]
         g = s["extension_gain"]
         conf_rows = []
         if self.base_fit is not None:
@@ -104,7 +148,7 @@ class DiagnosisReport:
         for c in self.confirmations:
             conf_rows.append([c.cause, ", ".join(c.names), c.rmse_train_mV, c.rmse_held_out_mV, c.converged])
         sections = [
-            html.Section("Verdict", [html.Paragraph(verdict + f" ({s['verdict']})", "bad" if s["cause"] else "good")]),
+            html.Section("Verdict", [html.Paragraph(verdict, tone), html.Paragraph(s["verdict"])]),
             html.Section("Residual", [html.KeyValues({k: v for k, v in s["residual"].items() if k != "features"})]),
             html.Section("Residual figures", figs),
             html.Section(
@@ -130,6 +174,17 @@ class DiagnosisReport:
                 ],
             ),
         ]
+        undecided = [
+            html.Paragraph(f"{what}: {c['cause']} ({c['why']}); would tell: {c['kind']} profile, {c['experiment']}")
+            for key, what in (
+                ("cannot_tell", "cannot tell"),
+                ("untestable", "not testable here"),
+                ("undetectable", "too small to see"),
+            )
+            for c in s.get(key, [])
+        ]
+        if undecided:
+            sections.insert(1, html.Section("What these data cannot tell", undecided))
         if self.warnings:
             sections.append(html.Section("Warnings", [html.Paragraph(w) for w in self.warnings]))
         return html.write(out / "report.html", f"Diagnosis of {self.cell_name}", sections, subtitle=verdict)

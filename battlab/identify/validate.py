@@ -30,20 +30,45 @@ class ValidationReport:
     ended_by: dict[str, dict[str, str]] = field(default_factory=dict)
 
     def write(self, outdir: str | Path) -> Path:
-        """Figures (Figs. 7 and 9) and ``<outdir>.summary.json`` in ``outdir``; returns the summary's path."""
+        """Figures (Figs. 7 and 9), ``report.html`` showing them with the RMSE table, and ``<outdir>.summary.json``
+        in ``outdir``; returns the summary's path."""
         from battlab.identify.validation import plot_cdf, plot_validation
+        from battlab.io.paths import summary_path
 
         outdir = Path(outdir)
         outdir.mkdir(parents=True, exist_ok=True)
-        for name, (e, preds) in self.predictions.items():
-            plot_validation(e, preds, outdir / f"{name.replace('#', '_')}.png")
-        plot_cdf(self.errors, outdir / "error_cdf.png", "validation: |voltage error|")
-        from battlab.io.paths import summary_path
-
+        figures = {
+            name: plot_validation(e, preds, outdir / f"{name.replace('#', '_')}.png")
+            for name, (e, preds) in self.predictions.items()
+        }
+        figures["|voltage error| of every data set"] = plot_cdf(
+            self.errors, outdir / "error_cdf.png", "validation: |voltage error|"
+        )
+        self._page(outdir / "report.html", figures)
         path = summary_path(outdir, directory=True)
         summary = {"rmse_mV": self.table, "coverage": self.coverage, "ended_by": self.ended_by}
         path.write_text(json.dumps(summary, indent=2, default=json_default))
         return path
+
+    def _page(self, path: Path, figures: dict[str, Path]) -> Path:
+        """The static page: RMSE [mV] per data set and cell (with the share of the data each prediction reached),
+        the warnings, and the figures."""
+        from battlab.report import html
+
+        labels = list(self.table)
+        names = list(next(iter(self.table.values()))) if labels else []
+        rows = [[n, *(self.table[lab][n] for lab in labels), *(self.coverage[lab][n] for lab in labels)] for n in names]
+        columns = ["data", *(f"{lab} RMSE [mV]" for lab in labels), *(f"{lab} share reached" for lab in labels)]
+        sections = [
+            html.Section(
+                "Voltage RMSE",
+                [html.Table(columns, rows, note="each prediction from the data's own start state")],
+            ),
+            html.Section("Figures", [html.Figure(p, name) for name, p in figures.items()]),
+        ]
+        if self.warnings:
+            sections.insert(1, html.Section("Warnings", [html.Paragraph(w, "warn") for w in self.warnings]))
+        return html.write(path, "Validation", sections, subtitle=", ".join(labels) + " on " + ", ".join(names))
 
 
 def cell_label(spec: str) -> str:

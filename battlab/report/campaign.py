@@ -286,7 +286,9 @@ def _norm(cell: Any, name: str, value: float) -> float:
 
 
 def _health(directory: Path) -> Section:
-    rows = []
+    """Every run's log health; the headline is green only when every run completed without late samples or gaps,
+    and names the runs that did not complete (aborted or stopped) with why."""
+    rows, unfinished = [], []
     for p in sorted((directory / "health").glob("*.json")):
         for r in _read(p):
             rows.append(
@@ -301,17 +303,21 @@ def _health(directory: Path) -> Section:
                     "; ".join(r["safety_events"]),
                 ]
             )
+            if r["status"] != "completed":
+                unfinished.append(f"{p.stem}/{r['log']} {r['status']}: {r.get('reason') or 'no reason logged'}")
     if not rows:
         return Section("Run-log health", [Paragraph("no runs in this campaign directory")])
     late = sum(r[4] for r in rows)
     gaps = sum(r[5] for r in rows)
-    tone = "good" if late == 0 and gaps == 0 else "bad"
+    head = f"{len(rows)} runs, {sum(r[3] for r in rows)} samples, {late} late, {gaps} gaps (missed samples)"
+    if unfinished:
+        head += f"; {len(unfinished)} of {len(rows)} runs did not complete (their logs end there)"
+    tone = "bad" if late or gaps else "warn" if unfinished else "good"
     return Section(
         "Run-log health",
         [
-            Paragraph(
-                f"{len(rows)} runs, {sum(r[3] for r in rows)} samples, {late} late, {gaps} gaps (missed samples)", tone
-            ),
+            Paragraph(head, tone),
+            *(Paragraph(u, "warn") for u in unfinished),
             Table(["stage", "log", "status", "samples", "late", "gaps", "max gap [s]", "safety events"], rows),
         ],
     )

@@ -31,14 +31,14 @@ figure { margin: 1rem 0; } figure img { max-width: 100%; border: 1px solid #eee;
 figcaption { color: #444; font-size: 0.9rem; }
 dl.kv { display: grid; grid-template-columns: max-content auto; gap: 0.2rem 1.2rem; }
 dl.kv dt { font-weight: 600; } dl.kv dd { margin: 0; }
-.good { color: #1a7f37; } .bad { color: #b42318; font-weight: 600; }
+.good { color: #1a7f37; } .bad { color: #b42318; font-weight: 600; } .warn { color: #9a6700; font-weight: 600; }
 """
 
 
 @dataclass(frozen=True)
 class Paragraph:
     text: str
-    tone: str = ""  # "", "good" or "bad"
+    tone: str = ""  # "", "good" (green), "warn" (amber) or "bad" (red)
 
 
 @dataclass(frozen=True)
@@ -56,7 +56,7 @@ class Table:
 
 @dataclass(frozen=True)
 class Figure:
-    path: str | Path  # the PNG (made relative to the page when written)
+    path: str | Path  # the PNG, absolute or relative to the working directory (made relative to the page when written)
     caption: str = ""
 
 
@@ -98,8 +98,7 @@ def _block(b: Block, base: Path | None) -> str:
         return f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>{note}"
     if isinstance(b, Figure):
         p = Path(b.path)
-        src = os.path.relpath(p, base) if base is not None and p.is_absolute() else str(p)
-        src = Path(src).as_posix()
+        src = Path(os.path.relpath(p.resolve(), base) if base is not None else p).as_posix()
         cap = f"<figcaption>{e(b.caption)}</figcaption>" if b.caption else ""
         return f'<figure><img src="{e(src)}" alt="{e(b.caption or p.name)}">{cap}</figure>'
     raise TypeError(f"not a report block: {b!r}")
@@ -108,7 +107,8 @@ def _block(b: Block, base: Path | None) -> str:
 def render(
     title: str, sections: Sequence[Section], *, subtitle: str = "", meta: str = "", base: Path | None = None
 ) -> str:
-    """The page as a string; figure paths are made relative to ``base`` (the page's directory)."""
+    """The page as a string; figure paths (absolute, or relative to the working directory) are made relative to
+    ``base`` (the page's directory), so the page finds its figures wherever it is opened from."""
     e = html.escape
     parts = [
         "<!DOCTYPE html>",

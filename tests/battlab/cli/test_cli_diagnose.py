@@ -4,6 +4,7 @@ bad input (data of another cell, an unknown cause, no ambient) is one line and e
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,9 +25,10 @@ CATALOG = {
 }
 
 
-def test_diagnose_writes_the_summary_report_and_figures(tmp_path, hidden_effect_csv) -> None:
+def test_diagnose_writes_the_summary_report_and_figures(tmp_path, hidden_effect_csv, monkeypatch) -> None:
     data = hidden_effect_csv(tmp_path / "null.bdf.csv")
-    out = tmp_path / "report"
+    monkeypatch.chdir(tmp_path)
+    out = Path("report")  # relative, as `-o report` is: the page still names its figures from its own folder
     r = CliRunner().invoke(main, ["diagnose", data, "--cell", "nca18650", "-o", str(out)])
     assert r.exit_code == 0, r.output
     assert "cause: none" in r.output and "score tests" in r.output and "Traceback" not in r.output
