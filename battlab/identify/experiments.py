@@ -1,8 +1,10 @@
 """The fit's :class:`Experiment` (a profile, its measured voltage and weights) and logged data → experiments: split
 at gaps, resample to a uniform grid, start SOC, ambient, weights.
 
-* Segments: the data are cut where the time stamps jump by more than ``max_gap`` (the Panasonic HPPC file logs
-  only the pulses, not the discharges between them); each segment is one experiment.
+* Segments: the data are cut where the time stamps jump by more than ``max_gap``, or by more than
+  :data:`battlab.io.checks.GAP_FACTOR` × the data's own median sampling interval when that is longer (the
+  Panasonic HPPC file logs only the pulses, not the discharges between them; its C/20 test is sampled every 60 s
+  and has no gap); each segment is one experiment.
 * Resampling to ``dt`` (default 1 s, the sampling of the Fisher information): the current is averaged over each
   interval [t_k, t_k + dt) (charge-conserving, zero-order hold), the voltage is interpolated at t_k.
 * Start SOC: ``meta["soc0"]`` if logged; else from the first sample's voltage when the cell rests there
@@ -26,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from battlab.cell import Cell
-from battlab.io.checks import DataWarning, ranges
+from battlab.io.checks import DataWarning, gap_threshold, ranges
 from battlab.io.data import NET_CAPACITY, STEP, SURFACE, LoggedData
 from battlab.noise import NoiseModel
 from protocols.errors import InputError
@@ -100,8 +102,9 @@ def variance_of(profile: Profile, noise: NoiseModel | None = None, quantum: floa
 
 
 def segments(data: LoggedData, max_gap: float = 60.0) -> list[slice]:
-    """Index slices between time gaps longer than ``max_gap`` [s] (segments of < 10 samples are dropped)."""
-    gaps = np.flatnonzero(np.diff(data.t) > max_gap) + 1
+    """Index slices between time gaps: steps longer than ``max_gap`` [s] and than the data's own sampling allows
+    (:func:`battlab.io.checks.gap_threshold`); segments of < 10 samples are dropped."""
+    gaps = np.flatnonzero(np.diff(data.t) > gap_threshold(data.t, min_gap_s=max_gap)) + 1
     edges = np.concatenate([[0], gaps, [len(data)]])
     return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b - a >= 10]
 

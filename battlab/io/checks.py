@@ -69,8 +69,23 @@ def detect_sign(t: np.ndarray, current: np.ndarray, voltage: np.ndarray) -> tupl
     return 0, why
 
 
+#: a step in time longer than this many times the data's median sampling interval (and than MIN_GAP_S) is a gap
+GAP_FACTOR = 20.0
+#: [s] the shortest step in time that counts as a gap, whatever the sampling
+MIN_GAP_S = 60.0
+
+
+def gap_threshold(t: np.ndarray, *, gap_factor: float = GAP_FACTOR, min_gap_s: float = MIN_GAP_S) -> float:
+    """The longest step in time [s] that is not a gap: ``gap_factor`` × the median step of ``t`` [s], at least
+    ``min_gap_s`` (a C/20 test logged every 60 s has no gaps at 60.01 s; a 1 s log has one at 61 s)."""
+    dt = np.diff(np.asarray(t, dtype=float))
+    dt = dt[dt > 0]
+    typical = float(np.median(dt)) if dt.size else 0.0
+    return max(gap_factor * typical, min_gap_s)
+
+
 def check_data(
-    data: LoggedData, *, fix_sign: bool = False, gap_factor: float = 20.0, min_gap_s: float = 60.0
+    data: LoggedData, *, fix_sign: bool = False, gap_factor: float = GAP_FACTOR, min_gap_s: float = MIN_GAP_S
 ) -> LoggedData:
     """Check and clean ``data``; returns data with duplicate time stamps dropped (and the sign fixed if asked).
 
@@ -110,11 +125,11 @@ def check_data(
         data = data.select(~dup)
         t, dt = data.t, np.diff(data.t)
     if dt.size:
-        typical = float(np.median(dt))
-        gap = dt > max(gap_factor * typical, min_gap_s)
+        longest = gap_threshold(t, gap_factor=gap_factor, min_gap_s=min_gap_s)
+        gap = dt > longest
         if gap.any():
             warnings.warn(
-                f"{where}: {int(gap.sum())} gap(s) in time longer than {max(gap_factor * typical, min_gap_s):.3g} s "
+                f"{where}: {int(gap.sum())} gap(s) in time longer than {longest:.3g} s "
                 f"(largest {dt.max():.6g} s) after {ranges(np.r_[gap, False], t)}; the current is held over them",
                 DataWarning,
                 stacklevel=2,
@@ -136,4 +151,4 @@ def check_data(
     return data
 
 
-__all__ = ["DataWarning", "check_data", "detect_sign", "ranges", "TIME", "VOLTAGE"]
+__all__ = ["DataWarning", "check_data", "detect_sign", "gap_threshold", "ranges", "TIME", "VOLTAGE"]

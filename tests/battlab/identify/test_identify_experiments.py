@@ -94,3 +94,26 @@ def test_the_uniform_start_after_a_rest_is_as_good_as_the_rest_is_long(rest_s: f
     alone = fm.run(th, p, soc, ambient=298.15, T0=298.15)
     err = chain.voltage[k0 : k0 + alone.voltage.size] - alone.voltage
     assert low <= float(np.sqrt(np.mean(err**2))) <= high
+
+
+def test_gaps_are_judged_against_the_datas_own_sampling() -> None:
+    """A log sampled every 60 s (± 12 ms, as the Panasonic C/20 test) is one segment until a 3 h pause; a 1 s log
+    is cut at a 61 s pause; segments under 10 samples are dropped."""
+    from battlab.identify.experiments import segments
+    from battlab.io.checks import gap_threshold
+    from battlab.io.data import CURRENT, TIME, VOLTAGE, LoggedData
+
+    def log(t: np.ndarray) -> LoggedData:
+        return LoggedData("x", {TIME: t, VOLTAGE: np.full(t.size, 3.7), CURRENT: np.zeros(t.size)}, {})
+
+    jitter = np.random.default_rng(0).uniform(-0.012, 0.012, 200)
+    slow = np.cumsum(60.0 + jitter)
+    slow[150:] += 3 * 3600.0
+    assert gap_threshold(slow) == pytest.approx(20 * 60.0, rel=1e-3)
+    assert [(s.start, s.stop) for s in segments(log(slow))] == [(0, 150), (150, 200)]
+    fast = np.arange(100.0)
+    fast[50:] += 60.0  # a 61 s step
+    assert gap_threshold(fast) == 60.0
+    assert [(s.start, s.stop) for s in segments(log(fast))] == [(0, 50), (50, 100)]
+    fast[95:] += 600.0
+    assert [(s.start, s.stop) for s in segments(log(fast))] == [(0, 50), (50, 95)]
