@@ -24,6 +24,7 @@ from scipy.optimize import brentq
 from battlab import parameters
 from battlab.functions import Expr, Function, Table, as_function, evaluate, to_json
 from protocols.errors import InputError
+from protocols.steps import did_you_mean
 
 F = 96485.33212  # Faraday constant [C/mol]
 R_GAS = 8.314462618  # gas constant [J/(mol K)]
@@ -209,7 +210,10 @@ class Cell:
                 for p in resources.files("battlab.cells").iterdir()
                 if p.name.endswith(".toml")
             )
-            raise InputError(f"cell {text!r}: not a built-in cell ({', '.join([*names, 'nca18650-true'])}) nor a file")
+            names.append("nca18650-true")
+            raise InputError(
+                f"cell {text!r}{did_you_mean(text, names)}: not a built-in cell ({', '.join(names)}) nor a file"
+            )
         if path.suffix == ".json":
             return cls.from_bpx(path)
         if path.suffix == ".toml":

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from enum import Enum
 
 from protocols.errors import InputError
+from protocols.steps import did_you_mean
 
 
 class Scale(Enum):
@@ -222,7 +223,10 @@ def extension_parameters(key: str) -> tuple[ExtensionParameter, ...]:
     try:
         return EXTENSIONS[key]
     except KeyError:
-        raise InputError(f"unknown model extension {key!r}; expected one of {', '.join(EXTENSIONS)}") from None
+        raise InputError(
+            f"unknown model extension {key!r}{did_you_mean(key, list(EXTENSIONS))}; expected one of "
+            f"{', '.join(EXTENSIONS)}"
+        ) from None
 
 
 def spec(name: str) -> ParameterSpec:
@@ -231,8 +235,9 @@ def spec(name: str) -> ParameterSpec:
     try:
         return SPECS[name] if name in SPECS else EXTENSION_SPECS[name]
     except KeyError:
+        hint = did_you_mean(name, [*NAMES, *EXTENSION_SPECS])
         raise InputError(
-            f"unknown parameter {name!r}; expected one of {', '.join(NAMES)} or an extension's KEY.NAME "
+            f"unknown parameter {name!r}{hint}; expected one of {', '.join(NAMES)} or an extension's KEY.NAME "
             f"({', '.join(EXTENSION_SPECS)})"
         ) from None
 

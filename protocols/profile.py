@@ -103,7 +103,8 @@ class Profile:
             missing = [c for c in (TIME_COLUMN, CURRENT_COLUMN) if c not in header]
             if missing:
                 raise InputError(
-                    f"{path}: missing column(s) {missing}; expected {TIME_COLUMN!r} and {CURRENT_COLUMN!r}"
+                    f"{path}: missing column(s) {missing}; expected {TIME_COLUMN!r} and {CURRENT_COLUMN!r}, the "
+                    f"header has {header}"
                 )
             it, ii = header.index(TIME_COLUMN), header.index(CURRENT_COLUMN)
             ts: list[float] = []

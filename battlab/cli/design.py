@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from battlab.cli.console import make_console
+from battlab.cli.options import ambient_option
 from battlab.io.paths import check_output_path, summary_path
 from protocols.errors import InputError
 
@@ -41,7 +42,7 @@ def _ids(text: str | None) -> list[int] | None:
 @click.option("--scheduler", default=None, help="Dask scheduler address, e.g. tcp://HOST:8786 (instead of --workers).")
 @click.option("--limit", type=int, default=None, help="Only the first N profiles (quick runs).")
 @click.option("--ids", default=None, help="Only these profile ids, e.g. '1,5,10-20'.")
-@click.option("--ambient", type=float, default=25.0, show_default=True, help="Ambient temperature [degC].")
+@ambient_option()
 @click.option(
     "--conventional/--no-conventional",
     default=True,

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import click
 
-from battlab.cli.fit import AMBIENT_OPTION, parse_ambients
+from battlab.cli.options import AMBIENT_OPTION, DATA_FORMATS, dt_option, max_iter_option, parse_ambients, soc0_option
 
 
-@click.command("diagnose")
+@click.command("diagnose", epilog=DATA_FORMATS)
 @click.argument("data", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--cell", "cell_name", required=True, help="The cell: a built-in name or a BPX file.")
 @click.option(
@@ -23,13 +23,13 @@ from battlab.cli.fit import AMBIENT_OPTION, parse_ambients
     help="Data to hold out for the confirmation (default: the last file; with one file its final 30 %).",
 )
 @AMBIENT_OPTION
-@click.option("--soc0", type=float, default=None, help="Start SOC of data that do not start at rest.")
-@click.option("--dt", type=float, default=1.0, show_default=True, help="Resample to this step [s].")
+@soc0_option()
+@dt_option()
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
 @click.option(
     "--cause", "causes", multiple=True, help="Test only this catalog cause (repeat; default: every testable one)."
 )
-@click.option("--max-iter", type=int, default=20, show_default=True, help="Function evaluations per held-out fit.")
+@max_iter_option("Function evaluations per held-out fit", default=20)
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False), help="Report directory.")
 def diagnose(
     data: tuple[str, ...],

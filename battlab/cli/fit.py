@@ -17,19 +17,26 @@ from typing import Any
 
 import click
 
-from battlab.cli.options import apply_extensions, apply_ocps, extension_option, ocp_option
-
-#: ``--ambient [FILE=]DEGC`` of fit and validate (see :func:`parse_ambients`)
-AMBIENT_OPTION = click.option(
-    "--ambient",
-    "ambients",
-    multiple=True,
-    metavar="[FILE=]DEGC",
-    help="Ambient temperature [degC] of data that do not log it: FILE=DEGC for one file (repeat), DEGC for all.",
+from battlab.cli.options import (
+    AMBIENT_OPTION,
+    CAPACITY,
+    DATA_FORMATS,
+    apply_extensions,
+    apply_ocps,
+    bounded_option,
+    dt_option,
+    extension_option,
+    max_iter_option,
+    ocp_option,
+    parse_ambients,
+    soc0_option,
 )
 
 
-@click.command("fit")
+@click.command(
+    "fit",
+    epilog=f"{DATA_FORMATS} A real cell step by step: examples/panasonic/fit.sh (the Panasonic 18650PF data).",
+)
 @click.argument("data", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--cell", "cell_name", required=True, help="Start cell: a built-in name or a BPX file.")
 @click.option(
@@ -53,7 +60,7 @@ AMBIENT_OPTION = click.option(
     show_default=True,
     help="Terms of the positive-OCP correction in the equilibrium fit (0 = the paper's method).",
 )
-@click.option("--rated-capacity", type=float, default=None, help="Set the cell's 1C capacity [Ah].")
+@bounded_option("--rated-capacity", CAPACITY, "Set the cell's 1C capacity [Ah]")
 @click.option(
     "--full-charge",
     type=click.Choice(["v-max", "ocv-start"]),
@@ -70,10 +77,10 @@ AMBIENT_OPTION = click.option(
     help="Pseudo-OCV from the mean of the OCV test's discharge and charge, or from one branch (shifted by its "
     "rest-step overpotential): with hysteresis, 'discharge' is the equilibrium that discharge tests see.",
 )
-@click.option("--soc0", type=float, default=None, help="Start SOC of data that do not start at rest.")
+@soc0_option()
 @AMBIENT_OPTION
-@click.option("--dt", type=float, default=1.0, show_default=True, help="Resample dynamic data to this step [s].")
-@click.option("--max-iter", type=int, default=40, show_default=True, help="Function evaluations per stage.")
+@dt_option("Resample dynamic data to this step [s]")
+@max_iter_option("Function evaluations per stage", default=40)
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
 @extension_option()
 @ocp_option()
@@ -97,9 +104,9 @@ AMBIENT_OPTION = click.option(
     default=None,
     metavar="NAMES",
     help="Give each data file its own ageing state, fitted with the shared parameters: 'n_Li' (cyclable lithium "
-    "[mol], within +-15 %% of the start cell's; every file starts at the OCV the start cell has at soc0) and/or "
+    "[mol], within +-15 % of the start cell's; every file starts at the OCV the start cell has at soc0) and/or "
     "'capacity' (active electrode area, 0.7-1.05 of the start cell's), e.g. n_Li,capacity; for tests of one cell "
-    "on different dates. Each file's values and 95 %% intervals go to the summary and the BPX metadata; the "
+    "on different dates. Each file's values and 95 % intervals go to the summary and the BPX metadata; the "
     "written cell holds their mean (one cell for every date).",
 )
 @click.option(
@@ -267,26 +274,6 @@ def fit(
     click.echo(f"wrote {out}, {summary_path} and {out.with_name('summary.json')}")
 
 
-def parse_ambients(values: tuple[str, ...]) -> dict[str, float] | None:
-    """``--ambient`` values ``FILE=DEGC`` or ``DEGC`` as {file or "*": kelvin}."""
-    from protocols.errors import InputError
-
-    out: dict[str, float] = {}
-    for text in values:
-        key, _, value = text.rpartition("=")
-        try:
-            degc = float(value)
-        except ValueError:
-            raise InputError(f"--ambient {text!r}: expected DEGC or FILE=DEGC, e.g. 0degC_HWFET.mat=0") from None
-        if not -40.0 <= degc <= 80.0:
-            raise InputError(f"--ambient {text!r}: {degc} degC is outside -40..80 degC")
-        key = key or "*"
-        if key in out:
-            raise InputError(f"--ambient {text!r}: {'all files' if key == '*' else key} given twice")
-        out[key] = degc + 273.15
-    return out or None
-
-
 def _print_noise(info: dict[str, Any]) -> None:
     """Which noise model weighed the residuals, and the repeated trials' noise levels."""
     m = info["model"]
@@ -338,12 +325,12 @@ def _print_estimates(r: Any) -> None:
     make_console().print(t)
 
 
-@click.command("validate")
+@click.command("validate", epilog=DATA_FORMATS)
 @click.argument("data", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--cell", "cells", multiple=True, required=True, help="A cell to score (repeat for several).")
-@click.option("--soc0", type=float, default=None, help="Start SOC of data that do not start at rest.")
+@soc0_option()
 @AMBIENT_OPTION
-@click.option("--dt", type=float, default=1.0, show_default=True, help="Resample to this step [s].")
+@dt_option()
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
 @click.option(
     "-o",

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from battlab.cli.options import soc0_option
 from battlab.io.paths import check_output_path
 from protocols import InputError, Library, Profile
 from protocols.constants import RATED_CAPACITY_AH
@@ -51,7 +52,7 @@ def build(output: str) -> None:
 @library.command("list")
 @_LIBRARY_OPTION
 @click.option("--kind", type=click.Choice(["pulse", "sine", "drive"]), default=None, help="Only this kind.")
-@click.option("--soc0", type=float, default=None, help="Only this start SOC.")
+@soc0_option("Only this start SOC")
 def list_(library_path: str | None, kind: str | None, soc0: float | None) -> None:
     """One line per profile: id, kind, start SOC, duration, peak current, net charge, flag, name."""
     lib = _open(library_path)

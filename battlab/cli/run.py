@@ -16,7 +16,7 @@ from typing import Any
 
 import click
 
-from battlab.cli.options import physics_option
+from battlab.cli.options import physics_option, soc0_option
 from protocols.errors import InputError
 
 
@@ -76,12 +76,7 @@ def _logging(verbose: bool) -> None:
     default=None,
     help="Speed of the in-process virtual tester (virtual URLs only; default 1000).",
 )
-@click.option(
-    "--soc0",
-    type=click.FloatRange(0.0, 1.0),
-    default=None,
-    help="Start SOC: of the virtual cell (virtual URLs), else recorded as the known start state.",
-)
+@soc0_option("Start SOC: of the virtual cell (virtual URLs), else recorded as the known start state")
 @click.option("--seed", type=int, default=0, show_default=True, help="Noise seed of the in-process virtual tester.")
 @physics_option(auto=False, default="dfn")
 @click.option(

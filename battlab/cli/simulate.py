@@ -8,7 +8,18 @@ from typing import TYPE_CHECKING
 
 import click
 
-from battlab.cli.options import apply_extensions, apply_ocps, extension_option, ocp_option
+from battlab.cli.options import (
+    TEMPERATURE,
+    ambient_option,
+    apply_extensions,
+    apply_ocps,
+    bounded_option,
+    extension_option,
+    ocp_option,
+    parse_v_limits,
+    soc0_option,
+    v_limits_option,
+)
 from protocols.errors import InputError
 from protocols.profile import Profile
 
@@ -19,16 +30,13 @@ if TYPE_CHECKING:
 @click.command("simulate")
 @click.argument("cell")
 @click.argument("profile")
-@click.option("--soc0", type=float, default=None, help="Start SOC in [0, 1] (default: from the profile, else 1).")
-@click.option("--ambient", type=float, default=25.0, show_default=True, help="Ambient temperature [degC].")
-@click.option("--T0", "t0", type=float, default=None, help="Initial cell temperature [degC] (default: the ambient).")
+@soc0_option("Start SOC (default: from the profile, else 1)")
+@ambient_option()
+@bounded_option("--T0", TEMPERATURE, "Initial cell temperature [degC] (default: the ambient)", "t0")
 @click.option("--isothermal", is_flag=True, help="Hold the cell at the ambient temperature.")
-@click.option(
-    "--v-limits",
-    default=None,
-    metavar="MIN,MAX",
-    help="Stop outside these voltages [V] instead of the cell's window (to follow logged data through the "
-    "excursions it shows, e.g. regen at full charge).",
+@v_limits_option(
+    "Stop outside these voltages [V] instead of the cell's window (to follow logged data through the "
+    "excursions it shows, e.g. regen at full charge); 0 <= MIN < MAX <= 10 V."
 )
 @click.option(
     "--sens",
@@ -73,11 +81,8 @@ def simulate(
     if soc0 is None:
         soc0 = prof.soc0 if prof.soc0 is not None else 1.0
     names = list(c.parameter_names()) if sens.strip() == "all" else [s.strip() for s in sens.split(",") if s.strip()]
-    for name, value in (("--ambient", ambient), ("--T0", t0)):
-        if value is not None and not -40.0 <= value <= 80.0:
-            raise InputError(f"{name} {value} degC is outside -40..80 degC")
     _check_current(prof, c, profile)
-    limits = _v_limits(v_limits) if v_limits is not None else None
+    limits = parse_v_limits(v_limits) if v_limits is not None else None
     console = make_console(stderr=True)
     _announce_compiles()
     T0 = None if t0 is None else t0 + 273.15
@@ -131,16 +136,6 @@ def _check_current(prof: Profile, cell: Cell, where: str) -> None:
             f"{where}: the current reaches {peak:.4g} A = {peak / q:.0f}C of the {q:g} Ah cell {cell.name!r} (more "
             f"than {MAX_C_RATE:g}C): wrong units (mA?) or another cell's profile"
         )
-
-
-def _v_limits(text: str) -> tuple[float, float]:
-    try:
-        lo, hi = (float(v) for v in text.split(","))
-    except ValueError:
-        raise InputError(f"--v-limits {text!r}: expected MIN,MAX in volts, e.g. 2.5,4.3") from None
-    if not 0.0 <= lo < hi <= 10.0:
-        raise InputError(f"--v-limits {text!r}: need 0 <= MIN < MAX <= 10 V")
-    return lo, hi
 
 
 class _CompileNotice(logging.Handler):

@@ -18,7 +18,7 @@ from typing import Any
 
 import click
 
-from battlab.cli.options import physics_option
+from battlab.cli.options import ambient_option, physics_option, soc0_option
 from drivers.scpi.dialects import DIALECTS
 from drivers.virtual.instruments import ChamberConfig
 from drivers.virtual.lab import LOOPBACK, VirtualLab, VirtualLabConfig
@@ -83,8 +83,8 @@ def virtual_tester() -> None:
 )
 @click.option("--cell", default="nca18650", show_default=True, help="Cell for battlab's physics factory.")
 @physics_option(auto=True, default="auto")
-@click.option("--soc0", default=0.5, show_default=True, type=click.FloatRange(0.0, 1.0), help="Initial SOC.")
-@click.option("--ambient", default=25.0, show_default=True, type=float, help="Initial chamber air / degC.")
+@soc0_option("Initial SOC", default=0.5)
+@ambient_option("Initial chamber air [degC]")
 @click.option(
     "--air-tau",
     default=300.0,

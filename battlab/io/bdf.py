@@ -61,7 +61,9 @@ def read_bdf_csv(path: str | Path) -> LoggedData:
         raise InputError(f"{path}: file is empty")
     missing = [c for c in REQUIRED if c not in header]
     if missing:
-        raise InputError(f"{path}: missing BDF column(s) {missing}; the header has {header}")
+        sep = next((s for s in (";", "\t", "|") if len(header) == 1 and s in header[0]), None)
+        hint = f" (separated by {sep!r}: a BDF CSV is comma-separated)" if sep else ""
+        raise InputError(f"{path}: missing BDF column(s) {missing}; the header has {header}{hint}")
     import pandas as pd
 
     try:

@@ -84,6 +84,15 @@ def gap_threshold(t: np.ndarray, *, gap_factor: float = GAP_FACTOR, min_gap_s: f
     return max(gap_factor * typical, min_gap_s)
 
 
+def _csv_line(data: LoggedData, bad: np.ndarray) -> str:
+    """For data read from a CSV: where the first bad sample is in the file, and the header read (an empty or missing
+    field reads as NaN: a short row, or a column the header does not have)."""
+    if not str(data.source).lower().endswith(".csv"):
+        return ""
+    k = int(np.flatnonzero(bad)[0])
+    return f"; line {k + 2} of the file, whose header has {list(data.columns)}"
+
+
 def check_data(
     data: LoggedData, *, fix_sign: bool = False, gap_factor: float = GAP_FACTOR, min_gap_s: float = MIN_GAP_S
 ) -> LoggedData:
@@ -101,7 +110,7 @@ def check_data(
     for col in REQUIRED:
         bad = ~np.isfinite(data.columns[col])
         if bad.any():
-            raise InputError(f"{where}: column {col!r} is NaN or infinite at {ranges(bad, t)}")
+            raise InputError(f"{where}: column {col!r} is NaN or infinite at {ranges(bad, t)}{_csv_line(data, bad)}")
     for col, values in data.columns.items():
         if col not in REQUIRED and not np.isfinite(values).all():
             warnings.warn(

@@ -42,7 +42,9 @@ class LoggedData:
         missing = [c for c in REQUIRED if c not in cols]
         where = self.source or self.name
         if missing:
-            raise InputError(f"{where}: missing column(s) {missing}; expected BDF columns {list(REQUIRED)}")
+            raise InputError(
+                f"{where}: missing column(s) {missing}; expected BDF columns {list(REQUIRED)}, found {list(cols)}"
+            )
         sizes = {k: v.size for k, v in cols.items()}
         if len(set(sizes.values())) != 1:
             raise InputError(f"{where}: columns have different lengths {sizes}")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -147,6 +148,29 @@ def test_bdf_csv_errors_name_the_line(tmp_path) -> None:
     p.write_text("Time,Voltage / V\n0,3.7\n")
     with pytest.raises(InputError, match="missing BDF column"):
         read_bdf_csv(p)
+
+
+def test_csv_errors_show_the_header_found(tmp_path) -> None:
+    """A semicolon-separated file, a short row (read as NaN), a profile CSV or a run log without a column: the
+    message shows the header (or columns) the file has."""
+    from protocols.profile import Profile
+
+    p = tmp_path / "semi.bdf.csv"
+    p.write_text("Test Time / s;Voltage / V;Current / A\n0;3.7;0\n1;3.7;0\n")
+    header = "['Test Time / s;Voltage / V;Current / A'] (separated by ';': a BDF CSV is comma-separated)"
+    with pytest.raises(InputError, match=re.escape(f"the header has {header}")):
+        read_bdf_csv(p)
+    p = tmp_path / "short.bdf.csv"
+    p.write_text("Test Time / s,Voltage / V,Current / A\n0,3.7,0\n1,3.7\n2,3.7,0\n")
+    found = "line 3 of the file, whose header has ['Test Time / s', 'Voltage / V', 'Current / A']"
+    with pytest.raises(InputError, match=re.escape(f"'Current / A' is NaN or infinite at sample 1 (t = 1 s); {found}")):
+        load_data(p)
+    p = tmp_path / "profile.csv"
+    p.write_text("Time [s],Current [A]\n0,1\n1,1\n")
+    with pytest.raises(InputError, match=re.escape("the header has ['Time [s]', 'Current [A]']")):
+        Profile.from_csv(p)
+    with pytest.raises(InputError, match=re.escape("found ['Test Time / s', 'Current / A']")):
+        LoggedData("x", {TIME: [0.0, 1.0], CURRENT: [0.0, 0.0]}, {}, "x.h5")
 
 
 def _slow_test() -> LoggedData:
