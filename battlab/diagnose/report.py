@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from battlab.identify.workflow import json_default
+from battlab.jsonable import json_default
 
 
 @dataclass
