@@ -28,7 +28,7 @@ import numpy as np
 from battlab.cell import Cell
 from drivers.clock import Clock
 from drivers.defaults import ChamberDefaults, CyclerDefaults
-from drivers.errors import InstrumentFault
+from drivers.errors import InstrumentFault, NotSupported
 from drivers.interfaces import CyclerCapabilities, Measurement, ProtectionState
 from drivers.virtual.instruments import (
     INH,
@@ -195,8 +195,8 @@ class LockstepCycler(CyclerDefaults):
         c = self._io()
         c.current_limit, c.current_limit_neg = float(charge_A), -float(discharge_A)
 
-    def set_temperature_limit(self, T_K: float) -> None:
-        self._io().temperature_protection_K = float(T_K)
+    def set_temperature_limit(self, T_max_K: float) -> None:
+        self._io().temperature_protection_K = float(T_max_K)
 
     def protection(self) -> ProtectionState:
         c = self._io()
@@ -302,7 +302,7 @@ class Tester:
         ):
             try:
                 dev = opener(url)
-            except InputError:
+            except (InputError, NotSupported):  # a user's mistake, or an instrument without what was asked
                 raise
             except Exception as exc:
                 why = " ".join(str(exc).split()) or type(exc).__name__

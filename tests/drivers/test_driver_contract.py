@@ -12,11 +12,12 @@ from drivers.chambers.espec import EspecP300
 from drivers.chambers.watlow_f4t import WatlowF4T
 from drivers.clock import RealClock
 from drivers.defaults import CyclerDefaults
-from drivers.errors import NotSupported
+from drivers.errors import InstrumentError, NotSupported
 from drivers.interfaces import CyclerCapabilities, Measurement, ProtectionState
 from drivers.scpi.cycler import ScpiCycler
 from drivers.scpi.dialects import DIALECTS
 from drivers.testing import ReplayAdapter, ReplayRegisters, contract_problems
+from protocols.errors import InputError
 
 
 def _timed_replay() -> ReplayAdapter:
@@ -144,3 +145,15 @@ def test_an_operation_the_instrument_lacks_is_not_supported_before_any_io(
     assert info.value.operation == what and info.value.instrument == cyc.name
     assert "\n" not in str(info.value) and str(info.value).startswith(f"{cyc.name}: {what} is not supported")
     replay.assert_all_used()  # nothing was sent
+
+
+def test_not_supported_is_neither_a_users_mistake_nor_a_fault() -> None:
+    """The same request: a value the instrument's watchdog cannot take is the user's mistake; a watchdog the
+    instrument does not have is NotSupported, which no handler of mistakes or faults catches by accident."""
+    keysight = ScpiCycler(ReplayAdapter([]), DIALECTS["keysight-n7951a"])
+    itech = ScpiCycler(ReplayAdapter([]), DIALECTS["itech-it6012c-80-300"])
+    with pytest.raises(InputError, match=r"watchdog_delay .*outside the instrument's range \[1, 3600\]"):
+        keysight.set_watchdog(7200)
+    with pytest.raises(NotSupported) as info:
+        itech.set_watchdog(60)
+    assert not isinstance(info.value, InputError | InstrumentError)

@@ -28,6 +28,7 @@ from drivers.defaults import ChamberDefaults, CyclerDefaults
 from drivers.errors import NotSupported
 from drivers.interfaces import CyclerCapabilities, Measurement, ProtectionState
 from drivers.registry import CHAMBER, CYCLER, OpenOptions, UrlScheme
+from drivers.testing import contract_problems
 from drivers.urls import InstrumentURL
 from protocols.errors import InputError
 
@@ -313,3 +314,13 @@ def test_the_cli_reports_an_unsupported_request_in_one_line(mem_drivers: None, h
     assert result.exit_code == 2
     assert result.output.strip() == f"error: cycler[{url}]: channel 3 is not supported (the instrument has one channel)"
     assert not out.exists()
+
+
+def test_the_campaigns_in_process_instruments_keep_the_contract() -> None:
+    """The lock-step tester's cycler and chamber, which the same engine runs on. Built without a lab: each
+    operation they declare then fails on the missing lab, which the check allows; what they leave out must still
+    be NotSupported without touching it."""
+    from battlab.campaign.tester import LockstepChamber, LockstepCycler
+
+    assert contract_problems(LockstepCycler.__new__(LockstepCycler), "cycler") == []
+    assert contract_problems(LockstepChamber.__new__(LockstepChamber), "chamber") == []
