@@ -18,9 +18,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
+from drivers.instrument_url import InstrumentURL
+
 if TYPE_CHECKING:
     from drivers.scpi.dialects import ScpiDialect
-    from drivers.urls import InstrumentURL
 
 Role = Literal["cycler", "chamber"]
 CYCLER: Role = "cycler"

@@ -20,58 +20,14 @@ it (:mod:`drivers.registry`); this table lists the in-tree ones. A URL that does
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
 from urllib.parse import parse_qsl, urlsplit
 
 from drivers import registry
+from drivers.instrument_url import InstrumentURL
 from protocols.errors import InputError
 
 VIRTUAL = "virtual"
 _DEVICE_RE = re.compile(r"^(/dev/[\w./-]+|COM\d+|loop://.*)$")
-
-
-@dataclass(frozen=True)
-class InstrumentURL:
-    """A parsed instrument URL.
-
-    ``scheme`` is a registered scheme (or ``virtual``); ``host``/``port`` for TCP links; ``device`` for serial ports;
-    ``options`` the query string (``baud``, ``unit``, ``parity``, ``stopbits``, ``timeout``).
-    """
-
-    raw: str
-    scheme: str
-    host: str | None = None
-    port: int | None = None
-    device: str | None = None
-    options: dict[str, str] = field(default_factory=dict)
-
-    @property
-    def pyserial_url(self) -> str:
-        """The pyserial ``serial_for_url`` argument for this link (``socket://h:p`` or a device path)."""
-        if self.device is not None:
-            return self.device
-        return f"socket://{self.host}:{self.port}"
-
-    def option(self, key: str, default: str | None = None) -> str | None:
-        return self.options.get(key, default)
-
-    def int_option(self, key: str, default: int) -> int:
-        value = self.options.get(key)
-        if value is None:
-            return default
-        try:
-            return int(value)
-        except ValueError:
-            raise InputError(f"instrument URL {self.raw!r}: option {key}={value!r} is not an integer") from None
-
-    def float_option(self, key: str, default: float) -> float:
-        value = self.options.get(key)
-        if value is None:
-            return default
-        try:
-            return float(value)
-        except ValueError:
-            raise InputError(f"instrument URL {self.raw!r}: option {key}={value!r} is not a number") from None
 
 
 def expected_forms() -> str:
