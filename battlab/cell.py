@@ -21,13 +21,11 @@ from typing import Any
 import numpy as np
 from scipy.optimize import brentq
 
-from battlab import parameters
+from battlab import causes, parameters
+from battlab.constants import R_GAS, F
 from battlab.functions import Expr, Function, Table, as_function, evaluate, to_json
 from protocols.errors import InputError
 from protocols.steps import did_you_mean
-
-F = 96485.33212  # Faraday constant [C/mol]
-R_GAS = 8.314462618  # gas constant [J/(mol K)]
 
 
 @dataclass(frozen=True)
@@ -183,6 +181,10 @@ class Cell:
         exts = {k: _check_extension(self.name, k, v) for k, v in dict(self.extensions).items()}
         order = list(parameters.EXTENSIONS)
         ordered = {k: MappingProxyType(exts[k]) for k in sorted(exts, key=order.index)}
+        clash = causes.slot_conflicts(list(ordered))
+        if clash:
+            a, b, slot = clash[0]
+            raise InputError(f"cell {self.name!r}: extensions {a!r} and {b!r} both change the model's {slot}")
         object.__setattr__(self, "extensions", MappingProxyType(ordered))
 
     def __reduce__(self) -> tuple:

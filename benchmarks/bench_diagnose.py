@@ -30,7 +30,7 @@ named cause equal to the true one.
 
 Visibility, measured outside the diagnosis's decision: the oracle. The true extension is fitted on the training
 part beside the same base parameters, from the same start with the same optimiser and stopping rule as the
-diagnosis's base fit (``diagnose(..., also_fit=[true cause])``), whatever the score tests say; the effect is
+diagnosis's base fit (``DiagnoseOptions.also_fit``), whatever the score tests say; the effect is
 "visible on this data" when that oracle passes the naming rule, a held-out RMSE gain of at least 30 % over the
 base fit. Chosen over the noise-free effect left after refitting the base (against the measured noise) because it
 asks the very question the naming rule asks (does knowing the true model predict unseen data better?), it counts
@@ -145,6 +145,11 @@ SIZES: dict[str, tuple[Callable[[np.random.Generator], dict[str, float]], str]] 
         "relative slopes 0.2-0.6 per 1000 mol/m3: the spread of LiPF6 carbonate property fits over 0.5-1.5 M "
         "(Valoen and Reimers 2005)",
     ),
+    "solid_diffusion": (
+        lambda g: {"b_n": _sign(g) * _u(g, 1.0, 3.0), "b_p": _sign(g) * _u(g, 1.0, 3.0)},
+        "log-slopes 1-3 per unit stoichiometry: D_s over an electrode's window changes 3-20 fold (GITT of graphite "
+        "and NCA, Ecker et al. 2015)",
+    ),
 }
 
 
@@ -252,14 +257,14 @@ def run_case(
 ) -> dict[str, Any]:
     """One case: the truth at each of ``ambients`` [°C] (one file each, the last held out; one file: its final
     30 %), diagnosed with the true cause also fitted on the diagnosis's terms (the oracle, :func:`visible`)."""
-    from battlab.diagnose.workflow import diagnose
+    from battlab.diagnose.workflow import DiagnoseOptions, diagnose
 
     paths = [
         make_case(workdir / f"case{k}_{a:g}C.bdf.csv", prof, cause, values, seed + 100_000 * j, a)
         for j, a in enumerate(ambients)
     ]
     t0 = time.perf_counter()
-    rep = diagnose(paths, CELL, also_fit=[cause] if cause else ())
+    rep = diagnose(DiagnoseOptions(paths, CELL, also_fit=[cause] if cause else ()))
     sec = time.perf_counter() - t0
     s = rep.summary
     g = s["extension_gain"]
@@ -475,10 +480,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.timing:
             long = profile(args.profile, q, hours=4.0)
             path = make_case(Path(tmp) / "long.bdf.csv", long, None, {}, 10**6 + args.seed)
-            from battlab.diagnose.workflow import diagnose
+            from battlab.diagnose.workflow import DiagnoseOptions, diagnose
 
             t0 = time.perf_counter()
-            rep = diagnose([path], CELL)
+            rep = diagnose(DiagnoseOptions([path], CELL))
             sec = time.perf_counter() - t0
             print(f"4 h at 1 s ({long.t.size} samples): {sec:.0f} s, outcome {outcome(rep.summary, None)}")
             if args.json:

@@ -48,22 +48,13 @@ from pybamm_reference import (
 from table import Row, log, print_table
 
 import battlab
-from battlab import Cell, parameters
+from battlab import Cell, causes, parameters
 from battlab.model.extensions import CATALOG
 from battlab.model.solver import Settings
 from protocols import Profile
 
-#: values that switch each extension on (a realistic size of the effect)
-ON = {
-    "contact_resistance": {"R_c": 0.004, "dRc_dT": 5e-5},
-    "current_sensor": {"offset": 0.02, "gain": 0.01},
-    "thermal": {"dE_D_s_n": 5000.0, "dE_k_p": -8000.0, "dE_kappa": 3000.0, "h2a_scale": 1.5, "dUdT_offset": 1e-4},
-    "equilibrium": {"d_sto_n": -0.005, "d_sto_p": 0.005, "dU": 0.003},
-    "hysteresis": {"M_n": 0.01, "gamma_n": 30.0, "M_p": 0.005, "gamma_p": 80.0},
-    "double_layer": {"C_dl_n": 0.2, "C_dl_p": 0.3},
-    "capacity_fade": {"I_side": 0.005, "alpha_side": 0.5, "lam_n": 0.008, "lam_p": 0.004},
-    "electrolyte": {"De_slope": 0.3, "kappa_slope": -0.4, "dlnf_slope": 0.5},
-}
+#: values that switch each extension on (a realistic size of the effect), as each cause declares them
+ON = {c.key: dict(c.example) for c in causes.extended()}
 
 
 def pulses(q: float, duration: float = 400.0) -> Profile:

@@ -29,6 +29,7 @@ import battlab
 from battlab import parameters as P
 from battlab.identify import conventional, symmetry
 from battlab.identify import fit as F
+from battlab.identify.cumulative import FitSettings, fit_cumulative
 from battlab.identify.forward import ForwardModel
 from battlab.identify.selection import greedy_d_optimal, information
 from battlab.identify.validation import (
@@ -107,12 +108,12 @@ def main() -> None:
             for g, c in zip(groups, chosen, strict=True)
         ]
         t1 = time.perf_counter()
-        res = F.fit_groupwise(
+        res = fit_cumulative(
             nominal,
             stages,
+            FitSettings(max_evaluations=a.max_nfev),
             forward=fm,
-            options=F.Options(max_nfev=a.max_nfev),
-            progress=(
+            on_stage=(
                 lambda k, r: print(
                     f"  stage {k}: {r.convergence.iterations} evaluations, "
                     f"{r.convergence.seconds:.1f} s, {r.convergence.reason}"
@@ -197,7 +198,7 @@ def _groupwise_seed(job) -> tuple[int, list[tuple[str, bool]], float]:
         for g, c in zip(groups, chosen, strict=True)
     ]
     t1 = time.perf_counter()
-    res = F.fit_groupwise(nominal, stages, forward=fm, options=F.Options(max_nfev=max_nfev, workers=1))
+    res = fit_cumulative(nominal, stages, FitSettings(max_evaluations=max_nfev, workers=1), forward=fm)
     return seed, _scored(res[-1].statistics), time.perf_counter() - t1
 
 

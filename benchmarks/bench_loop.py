@@ -281,8 +281,7 @@ def fit(
     print estimates vs truth; returns ({name: (covered by the 95 % interval, by the s²-scaled one)} over the
     interior parameters and invariants (:func:`interior`), mean |log10 error| of the point-identified parameters
     and the invariants, the fit's seconds)."""
-    from battlab import Cell, parameters
-    from battlab.identify import workflow
+    from battlab import Cell, parameters, workflow
 
     truth = Cell.load("nca18650-true")
     t0 = time.perf_counter()
@@ -295,14 +294,10 @@ def fit(
         )
 
     rep = workflow.fit(
-        logs,
-        start,
-        plan=plan,
-        params=None,
-        max_iter=max_iter,
-        on_stage=stage,
-        output=work / "fit.bpx.json",
-        noise=noise,
+        workflow.FitOptions(
+            logs, start, plan=plan, params=None, max_iter=max_iter, output=work / "fit.bpx.json", noise=noise
+        ),
+        [workflow.on_stage(stage)],
     )
     secs = time.perf_counter() - t0
     ok = "met" if secs <= TARGET_FIT_S else "MISSED"

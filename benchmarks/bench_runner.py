@@ -40,7 +40,8 @@ from battlab.lab.limits import Envelope
 from battlab.lab.logfile import create
 from battlab.lab.plan import Plan, RunOptions
 from battlab.lab.session import RunSettings, start_run
-from drivers.interfaces import Measurement, ProtectionState
+from drivers.defaults import ChamberDefaults, CyclerDefaults
+from drivers.interfaces import CyclerCapabilities, Measurement, ProtectionState
 from protocols import Library, Protocol
 from protocols.protocol import ProfileStep, Rest, after
 
@@ -142,11 +143,15 @@ class JumpClock:
         self.t += max(0.0, dt_s)
 
 
-class NullCycler:
+class NullCycler(CyclerDefaults):
     name = "null cycler"
+    capabilities = CyclerCapabilities(clock=True, timestamps=True, low_voltage_cutoff=True, watchdog=True)
 
     def __init__(self, clock: JumpClock) -> None:
-        self.clock, self.i, self.last_applied_t_s = clock, 0.0, None
+        self._clock, self.i, self.last_applied_t_s = clock, 0.0, None
+
+    def clock(self) -> JumpClock:
+        return self._clock
 
     def identify(self) -> str:
         return "null,cycler,0,0"
@@ -155,12 +160,12 @@ class NullCycler:
 
     def set_current(self, current_A: float) -> None:
         self.i = current_A
-        self.last_applied_t_s = self.clock.t
+        self.last_applied_t_s = self._clock.t
 
     def output(self, on: bool) -> None: ...
 
     def measure(self) -> Measurement:
-        return Measurement(3.7 + 0.03 * self.i, self.i, 298.15, self.clock.t)
+        return Measurement(3.7 + 0.03 * self.i, self.i, 298.15, self._clock.t)
 
     def set_voltage_limits(self, low_V: float | None, high_V: float) -> None: ...
 
@@ -168,8 +173,6 @@ class NullCycler:
 
     def protection(self) -> ProtectionState:
         return ProtectionState(False)
-
-    def clear_protection(self) -> None: ...
 
     def errors(self) -> list[tuple[int, str]]:
         return []
@@ -182,7 +185,7 @@ class NullCycler:
     def close(self) -> None: ...
 
 
-class NullChamber:
+class NullChamber(ChamberDefaults):
     name = "null chamber"
 
     def identify(self) -> str:

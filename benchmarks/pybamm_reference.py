@@ -172,8 +172,8 @@ def capacity_fade_in_pybamm(
     j0 = I_side / (a A L⁻) · exp(−α F/(R T) (U_sei − U_ref)), no film resistance (resistivity 0: the film's drop also
     leaves the SEI overpotential) and no activation energy; the "current-driven" loss of active material at the
     constant rates dε_s/dt = −ε_s⁰ lam/3600. The SEI's thickness, volume and lithium ratio do not act here."""
+    from battlab.causes.capacity_fade import CapacityFade
     from battlab.cell import R_GAS, F
-    from battlab.model.extensions import CapacityFade
 
     eps_n, eps_p = float(cell["eps_s_n"]), float(cell["eps_s_p"])
     area = 3.0 * eps_n / float(cell["R_s_n"]) * float(cell["A"]) * float(cell["L_n"])  # a A L⁻ [m²]

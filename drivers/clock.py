@@ -15,7 +15,10 @@ from typing import Protocol, runtime_checkable
 
 @runtime_checkable
 class Clock(Protocol):
-    """Monotonic time in seconds, and sleeping in that time."""
+    """Monotonic time in seconds, and sleeping in that time; ``speed``: its seconds per real second (1 for wall
+    time, more for an accelerated virtual clock)."""
+
+    speed: float
 
     def now(self) -> float:
         """Current time / s."""

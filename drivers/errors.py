@@ -8,6 +8,10 @@ instrument's range). Faults that come from the instrument or the link are :class
 - :class:`InstrumentFault`: the instrument itself reports a problem (error queue, ``NA:`` reply, Modbus
   exception, protection trip, chamber alarm, stability timeout); retrying does not help.
 
+:class:`NotSupported` is neither: the instrument lacks an operation (no watchdog, no low-voltage cut-off, ...). A
+driver declares what it has in its ``capabilities`` (:mod:`drivers.interfaces`) and raises this, before any I/O, when
+asked for what it declared it lacks; callers ask the capabilities first.
+
 Every message names the instrument and, where there is one, the reply.
 """
 
@@ -48,3 +52,14 @@ class InstrumentFault(InstrumentError):
     ) -> None:
         self.causes = causes
         super().__init__(instrument, message, reply=reply)
+
+
+class NotSupported(Exception):
+    """The instrument lacks ``operation``: not a user's mistake (:class:`protocols.errors.InputError`) and not a fault
+    of the instrument or the link (:class:`InstrumentError`). Raised before any I/O."""
+
+    def __init__(self, instrument: str, operation: str, why: str = "") -> None:
+        self.instrument = instrument
+        self.operation = operation
+        self.why = why
+        super().__init__(f"{instrument}: {operation} is not supported" + (f" ({why})" if why else ""))

@@ -14,15 +14,22 @@ For Modbus register access (:class:`ReplayRegisters`): ``> R 2820 2`` / ``< 0 16
 
 The replaying adapter fails on the first unexpected command and :meth:`assert_all_used` fails on pairs
 that were never exercised, so a recording cannot silently go stale.
+
+:func:`contract_problems` checks a driver against its interface (:mod:`drivers.interfaces`).
 """
 
 from __future__ import annotations
 
+import inspect
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
-from drivers.errors import CommunicationError, InstrumentFault
+from drivers.clock import RealClock
+from drivers.errors import CommunicationError, InstrumentFault, NotSupported
+from drivers.interfaces import Chamber, ChamberCapabilities, Cycler, CyclerCapabilities
+from protocols.errors import InputError
 
 Pair = tuple[str, str | None]
 
@@ -83,6 +90,9 @@ class _Replay:
 class ReplayAdapter(_Replay):
     """A :class:`drivers.transport.TextAdapter` that replays a recording. ``<TIMEOUT>`` simulates no reply."""
 
+    #: a recording has no read timeout to change
+    timeout_s: float | None = None
+
     def __init__(self, pairs: Iterable[Pair], name: str = "replay") -> None:
         super().__init__(pairs, name)
         self.recoveries = 0
@@ -103,6 +113,9 @@ class ReplayAdapter(_Replay):
 
 class ReplayRegisters(_Replay):
     """A :class:`drivers.chambers.modbus.RegisterAdapter` replaying ``R``/``W`` pairs (any number base)."""
+
+    #: a recording is never retried
+    retries = 0
 
     def __init__(self, pairs: Iterable[Pair], name: str = "replay") -> None:
         def normal(command: str) -> str:
@@ -134,3 +147,124 @@ def wait_until(predicate: Callable[[], bool], timeout_s: float, poll_s: float = 
             return True
         time.sleep(poll_s)
     return predicate()
+
+
+# -- the driver contract ---------------------------------------------------------------------------------------
+_SPECS: dict[str, tuple[type, type]] = {
+    "cycler": (Cycler, CyclerCapabilities),
+    "chamber": (Chamber, ChamberCapabilities),
+}
+_SKIP = {"__init__", "__subclasshook__", "__class_getitem__", "__init_subclass__", "__new__"}
+
+#: each optional cycler operation, the capability that declares it, and a call that would use it
+_CYCLER_OPTIONAL: tuple[tuple[str, str, Callable[[Any], Any]], ...] = (
+    ("low_voltage_cutoff", "set_voltage_limits(2.5, 4.2)", lambda d: d.set_voltage_limits(2.5, 4.2)),
+    ("temperature_limit", "set_temperature_limit(318.15)", lambda d: d.set_temperature_limit(318.15)),
+    ("watchdog", "set_watchdog(60.0)", lambda d: d.set_watchdog(60.0)),
+    ("clear_protection", "clear_protection()", lambda d: d.clear_protection()),
+)
+
+
+def protocol_members(protocol: type) -> dict[str, Any]:
+    """The members a :class:`typing.Protocol` declares (its own and its protocol bases'): name → function, property,
+    or the annotation of a data member."""
+    members: dict[str, Any] = {}
+    for base in reversed(protocol.__mro__):
+        if base is object or not getattr(base, "_is_protocol", False) or base.__name__ in ("Protocol", "Generic"):
+            continue
+        members.update(dict.fromkeys(base.__dict__.get("__annotations__", {}), "attribute"))
+        for name, value in base.__dict__.items():
+            if (
+                name not in _SKIP
+                and not name.startswith("_")
+                and (inspect.isfunction(value) or isinstance(value, property))
+            ):
+                members[name] = value
+    return members
+
+
+def _signature_problems(name: str, wanted: Any, got: Any) -> list[str]:
+    try:
+        want, have = inspect.signature(wanted), inspect.signature(got)
+    except (TypeError, ValueError):
+        return []
+    want_params = [p for p in want.parameters.values() if p.name != "self"]
+    have_params = {p.name: p for p in have.parameters.values() if p.name != "self"}
+    problems = []
+    for p in want_params:
+        q = have_params.pop(p.name, None)
+        if q is None:
+            problems.append(f"{name}: no parameter {p.name!r}")
+        elif q.kind != p.kind and q.kind not in (p.POSITIONAL_OR_KEYWORD,):
+            problems.append(f"{name}: parameter {p.name!r} is {q.kind.description}, wanted {p.kind.description}")
+        elif p.default is not p.empty and q.default is p.empty:
+            problems.append(f"{name}: parameter {p.name!r} needs a default")
+    for q in have_params.values():
+        if q.default is q.empty and q.kind not in (q.VAR_POSITIONAL, q.VAR_KEYWORD):
+            problems.append(f"{name}: extra parameter {q.name!r} without a default")
+    return problems
+
+
+def contract_problems(device: object, role: str) -> list[str]:
+    """What ``device`` lacks to be a ``role`` (``cycler`` or ``chamber``) by :mod:`drivers.interfaces`; empty if it
+    conforms.
+
+    Checked: every member of the interface is there, methods take the interface's parameters, ``capabilities`` has
+    the role's type, and each optional operation agrees with it: one the capabilities leave out raises
+    :class:`NotSupported` (a cycler without a clock gives the host's :class:`RealClock`), one they declare raises
+    neither NotSupported nor InputError for a value in range. ``device`` must sit on a link that fails every
+    exchange (e.g. a :class:`ReplayAdapter` with no pairs): operations it declares are called and may fail there.
+    """
+    protocol, caps_type = _SPECS[role]
+    cls = type(device)
+    problems: list[str] = []
+    for name, wanted in protocol_members(protocol).items():
+        if not hasattr(device, name):
+            problems.append(f"{cls.__name__} has no {name}")
+            continue
+        if inspect.isfunction(wanted):
+            got = getattr(device, name)
+            if not callable(got):
+                problems.append(f"{cls.__name__}.{name} is not callable")
+            else:
+                problems += [f"{cls.__name__}.{p}" for p in _signature_problems(name, wanted, got)]
+    if problems:
+        return problems
+    caps = device.capabilities  # type: ignore[attr-defined]
+    if not isinstance(caps, caps_type):
+        return [f"{cls.__name__}.capabilities is {type(caps).__name__}, not {caps_type.__name__}"]
+    if not isinstance(device.name, str) or not isinstance(device.retries, int):  # type: ignore[attr-defined]
+        problems.append(f"{cls.__name__}: name must be a str and retries an int")
+    checks = list(_CYCLER_OPTIONAL) if role == "cycler" else []
+    checks.append(("link_timeout", "setting link_timeout_s", _set_link_timeout))
+    for flag, what, use in checks:
+        declared = getattr(caps, flag)
+        try:
+            use(device)
+        except (NotSupported, InputError) as exc:
+            if declared:
+                problems.append(f"{cls.__name__}: {what} raises {type(exc).__name__} but capabilities.{flag} is True")
+            if isinstance(exc, NotSupported) or declared:
+                continue
+            problems.append(f"{cls.__name__}: {what} raises InputError, not NotSupported, without capabilities.{flag}")
+            continue
+        except Exception:  # declared and tried: failing on the silent link is allowed
+            pass
+        if not declared:
+            problems.append(f"{cls.__name__}: {what} does not raise NotSupported but capabilities.{flag} is False")
+    if role == "cycler" and not caps.clock:
+        try:
+            clock = device.clock()  # type: ignore[attr-defined]
+        except Exception as exc:
+            problems.append(f"{cls.__name__}: clock() without the clock capability raised {exc!r}")
+        else:
+            if not isinstance(clock, RealClock):
+                problems.append(f"{cls.__name__}: clock() without the clock capability is not the host's RealClock")
+    return problems
+
+
+def _set_link_timeout(device: Any) -> None:
+    old = device.link_timeout_s
+    device.link_timeout_s = 1.0
+    if old is not None:
+        device.link_timeout_s = old

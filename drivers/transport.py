@@ -51,6 +51,8 @@ class TextAdapter(Protocol):
     """What a text-protocol driver needs from its connection (pymeasure's "adapter")."""
 
     name: str
+    #: the read timeout / s, which the driver may change while connected (None: the adapter has none)
+    timeout_s: float | None
 
     def write(self, command: str) -> None:
         """Send one command line (no reply expected)."""

@@ -12,81 +12,31 @@
 ``virtual``                              the in-process virtual tester
 =======================================  ==========================================================
 
-A URL that does not fit raises :class:`protocols.errors.InputError` naming it.
+Each scheme's syntax (host and port, device path, default port, options) is declared by the driver that registers
+it (:mod:`drivers.registry`); this table lists the in-tree ones. A URL that does not fit raises
+:class:`protocols.errors.InputError` naming it and the registered forms.
 """
 
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
 from urllib.parse import parse_qsl, urlsplit
 
+from drivers import registry
+from drivers.instrument_url import InstrumentURL
 from protocols.errors import InputError
 
-SCHEMES = ("socket", "serial", "modbus-tcp", "modbus-rtu", "modbus-rtu+socket", "espec", "virtual")
-_DEFAULT_PORTS = {"modbus-tcp": 502, "espec": 10001}
-_ALLOWED_OPTIONS = {
-    "socket": {"timeout"},
-    "serial": {"baud", "timeout"},
-    "modbus-tcp": {"unit", "timeout"},
-    "modbus-rtu": {"unit", "baud", "parity", "stopbits", "timeout"},
-    "modbus-rtu+socket": {"unit", "timeout"},
-    "espec": {"baud", "timeout"},
-    "virtual": set(),
-}
+VIRTUAL = "virtual"
 _DEVICE_RE = re.compile(r"^(/dev/[\w./-]+|COM\d+|loop://.*)$")
 
 
-@dataclass(frozen=True)
-class InstrumentURL:
-    """A parsed instrument URL.
-
-    ``scheme`` is one of :data:`SCHEMES`; ``host``/``port`` for TCP links; ``device`` for serial ports;
-    ``options`` the query string (``baud``, ``unit``, ``parity``, ``stopbits``, ``timeout``).
-    """
-
-    raw: str
-    scheme: str
-    host: str | None = None
-    port: int | None = None
-    device: str | None = None
-    options: dict[str, str] = field(default_factory=dict)
-
-    @property
-    def pyserial_url(self) -> str:
-        """The pyserial ``serial_for_url`` argument for this link (``socket://h:p`` or a device path)."""
-        if self.device is not None:
-            return self.device
-        return f"socket://{self.host}:{self.port}"
-
-    def option(self, key: str, default: str | None = None) -> str | None:
-        return self.options.get(key, default)
-
-    def int_option(self, key: str, default: int) -> int:
-        value = self.options.get(key)
-        if value is None:
-            return default
-        try:
-            return int(value)
-        except ValueError:
-            raise InputError(f"instrument URL {self.raw!r}: option {key}={value!r} is not an integer") from None
-
-    def float_option(self, key: str, default: float) -> float:
-        value = self.options.get(key)
-        if value is None:
-            return default
-        try:
-            return float(value)
-        except ValueError:
-            raise InputError(f"instrument URL {self.raw!r}: option {key}={value!r} is not a number") from None
+def expected_forms() -> str:
+    """The registered URL forms, for messages: ``socket://HOST:PORT, a serial device path, ... or 'virtual'``."""
+    return ", ".join(scheme.example for scheme in registry.url_schemes()) + f" or {VIRTUAL!r}"
 
 
 def _bad(url: str, why: str) -> InputError:
-    return InputError(
-        f"instrument URL {url!r}: {why}; expected socket://HOST:PORT, a serial device path, "
-        "modbus-tcp://HOST[:PORT], modbus-rtu:///dev/DEVICE?baud=N, modbus-rtu+socket://HOST:PORT, "
-        "espec://HOST[:PORT] or 'virtual'"
-    )
+    return InputError(f"instrument URL {url!r}: {why}; expected {expected_forms()}")
 
 
 def parse_url(url: str) -> InstrumentURL:
@@ -94,24 +44,28 @@ def parse_url(url: str) -> InstrumentURL:
     if not isinstance(url, str) or not url.strip():
         raise _bad(str(url), "empty")
     url = url.strip()
-    if url == "virtual":
-        return InstrumentURL(raw=url, scheme="virtual")
+    if url == VIRTUAL:
+        return InstrumentURL(raw=url, scheme=VIRTUAL)
     path_part, _, query = url.partition("?")
     if _DEVICE_RE.match(path_part):
-        return InstrumentURL(raw=url, scheme="serial", device=path_part, options=_options(url, "serial", query))
+        serial = registry.url_scheme("serial")
+        if serial is None:
+            raise _bad(url, "no registered driver opens a bare serial device path")
+        return InstrumentURL(raw=url, scheme="serial", device=path_part, options=_options(url, serial, query))
     if "://" not in url:
         raise _bad(url, "no scheme and not a device path")
     parts = urlsplit(url)
-    scheme = parts.scheme.lower()
-    if scheme not in SCHEMES or scheme == "serial":
+    name = parts.scheme.lower()
+    spec = registry.url_scheme(name) if name != "serial" else None
+    if spec is None:
         raise _bad(url, f"unknown scheme {parts.scheme!r}")
-    options = _options(url, scheme, parts.query)
-    if scheme in ("modbus-rtu", "espec") and not parts.netloc and parts.path:
+    options = _options(url, spec, parts.query)
+    if spec.device and not parts.netloc and parts.path:
         if not _DEVICE_RE.match(parts.path):
             raise _bad(url, f"{parts.path!r} is not a serial device path")
-        return InstrumentURL(raw=url, scheme=scheme, device=parts.path, options=options)
-    if scheme == "modbus-rtu":
-        raise _bad(url, "modbus-rtu needs a device path (modbus-rtu:///dev/ttyUSB1)")
+        return InstrumentURL(raw=url, scheme=name, device=parts.path, options=options)
+    if not spec.network:
+        raise _bad(url, f"{name} needs a device path ({name}:///dev/ttyUSB1)")
     if parts.path not in ("", "/"):
         raise _bad(url, f"unexpected path {parts.path!r}")
     try:
@@ -120,24 +74,24 @@ def parse_url(url: str) -> InstrumentURL:
         raise _bad(url, f"bad port ({exc})") from None
     if not host:
         raise _bad(url, "no host")
-    port = port if port is not None else _DEFAULT_PORTS.get(scheme)
+    port = port if port is not None else spec.default_port
     if port is None:
         raise _bad(url, "no port")
     if not 0 < port < 65536:
         raise _bad(url, f"port {port} out of range")
-    return InstrumentURL(raw=url, scheme=scheme, host=host, port=port, options=options)
+    return InstrumentURL(raw=url, scheme=name, host=host, port=port, options=options)
 
 
-def _options(url: str, scheme: str, query: str) -> dict[str, str]:
+def _options(url: str, spec: registry.UrlScheme, query: str) -> dict[str, str]:
     try:
         pairs = parse_qsl(query, keep_blank_values=True, strict_parsing=bool(query))
     except ValueError:
         raise _bad(url, f"bad options {query!r}") from None
     options = dict(pairs)
-    unknown = set(options) - _ALLOWED_OPTIONS[scheme]
+    unknown = set(options) - spec.options
     if unknown:
         raise _bad(
             url,
-            f"unknown option(s) {sorted(unknown)} for {scheme} (allowed: {sorted(_ALLOWED_OPTIONS[scheme])})",
+            f"unknown option(s) {sorted(unknown)} for {spec.name} (allowed: {sorted(spec.options)})",
         )
     return options

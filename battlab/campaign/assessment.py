@@ -28,24 +28,40 @@ CC_DT = 10.0
 
 def fit_oed(camp: Campaign) -> Callable[[StageContext], StageOutput]:
     def run(ctx: StageContext) -> StageOutput:
-        from battlab.campaign.identify import cumulative_fit
-        from battlab.identify.fit import Stage as FitStage
-        from battlab.noise import NoiseModel
+        """``battlab fit`` on the designed experiments' run logs, stages from the design's groups."""
+        from battlab.campaign.identify import finish, settings
+        from battlab.identify.fit_options import FitOptions
+        from battlab.identify.workflow import fit
+        from battlab.progress import ProgressEvent
 
-        cell = Cell.load(str(ctx.path("equilibrium", "cell")))
-        model = NoiseModel(**read_json(ctx.path("noise", "model"))["model"])
-        logs = {k.removeprefix("log_"): v for k, v in ctx.inputs["experiments"].files.items() if k.startswith("log_")}
-        exps = {
-            pid: D.experiment(ctx.directory / rel, cell, name=f"profile {pid}", noise=model)
-            for pid, rel in logs.items()
-        }
-        stages, used = [], set()
-        for g in ctx.inputs["design"].summary["groups"]:
-            new = [str(p) for p in g["selected"] if str(p) not in used and str(p) in exps]
-            used |= set(new)
-            stages.append(FitStage(tuple(g["parameters"]), tuple(exps[p] for p in new)))
-        out = ctx.directory / "fit"
-        summary = cumulative_fit(cell, stages, camp, out / "oed.bpx.json", ctx.progress)
+        cell_path = ctx.path("equilibrium", "cell")
+        logs = [ctx.directory / v for k, v in ctx.inputs["experiments"].files.items() if k.startswith("log_")]
+        groups = tuple(
+            (tuple(g["parameters"]), frozenset(str(p) for p in g["selected"]))
+            for g in ctx.inputs["design"].summary["groups"]
+        )
+        s = settings(camp)
+        options = FitOptions(
+            data=tuple(logs),
+            cell=cell_path,
+            groups=groups,
+            noise=ctx.path("noise", "model"),
+            max_iter=s.max_evaluations,
+            polish=s.polish,
+            output=ctx.directory / "fit" / "oed.bpx.json",
+        )
+
+        def show(ev: ProgressEvent) -> None:
+            if ev.kind == "note" and ev.payload is not None and hasattr(ev.payload, "stage"):
+                st = ev.payload
+                ctx.progress(st.stage, st.total, f"stage {st.stage} of {st.total} done")
+
+        rep = fit(options, [show])
+        summary = dict(rep.summary)
+        summary["data_hours"] = float(sum(e.hours for e in rep.experiments))
+        finish(summary, camp, Cell.load(str(cell_path)))
+        rep.summary = summary
+        rep.write(options.output)
         return StageOutput({"cell": "fit/oed.bpx.json", "summary": "fit/oed.summary.json"}, summary)
 
     return run
@@ -174,13 +190,3 @@ def export(camp: Campaign) -> Callable[[StageContext], StageOutput]:
 
 def _number(x: Any) -> bool:
     return isinstance(x, int | float) and not isinstance(x, bool) and x != 0
-
-
-def report(camp: Campaign) -> Callable[[StageContext], StageOutput]:
-    def run(ctx: StageContext) -> StageOutput:
-        from battlab.report.campaign import write_report
-
-        page = write_report(ctx.directory, {k: v.summary for k, v in ctx.inputs.items()}, ctx.inputs, camp)
-        return StageOutput({"report": rel_path(ctx, page)}, {"report": rel_path(ctx, page)})
-
-    return run

@@ -22,7 +22,7 @@ class RunFailed(Exception):
 
 
 def write_json(path: Path, data: Any) -> None:
-    from battlab.identify.workflow import json_default
+    from battlab.jsonable import json_default
 
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(data, indent=1, default=json_default))

@@ -33,9 +33,9 @@ def library(camp: Campaign) -> Callable[[StageContext], StageOutput]:
 
 def sweep(camp: Campaign) -> Callable[[StageContext], StageOutput]:
     def run(ctx: StageContext) -> StageOutput:
+        from battlab.design.workflow import sweep as do_sweep
         from battlab.design.workflow import sweep_summary
         from battlab.progress import ProgressEvent
-        from battlab.workflow import sweep as do_sweep
 
         def sub(ev: ProgressEvent) -> None:
             if ev.kind == "advance":
@@ -65,7 +65,7 @@ def sweep(camp: Campaign) -> Callable[[StageContext], StageOutput]:
 
 def groups(camp: Campaign) -> Callable[[StageContext], StageOutput]:
     def run(ctx: StageContext) -> StageOutput:
-        from battlab.workflow import groups as do_groups
+        from battlab.design.workflow import groups as do_groups
 
         out = ctx.directory / "groups"
         rep = do_groups(ctx.path("sweep", "store"), out_dir=out, perturb=False)

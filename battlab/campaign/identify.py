@@ -1,8 +1,9 @@
 """The campaign's fits, validation scores and residual analysis on its own experiments.
 
-The fits call :func:`battlab.identify.fit.fit_groupwise` (weighted Levenberg-Marquardt with sensitivities, eqs.
-41-46) with the campaign's experiments, weighted by the noise model fitted from repeated trials, so that the OED fit
-and the conventional fit share start point, optimiser and stopping rule (``[fit] max_evaluations``).
+The OED fit is ``battlab fit`` itself on the campaign's run logs (:func:`battlab.identify.workflow.fit`); the
+conventional fit runs the same engine (:func:`battlab.identify.cumulative.fit_cumulative`) with the same settings, so
+both share start point, optimiser, stopping rule (``[fit] max_evaluations``) and defaults, weighted by the noise
+model fitted from repeated trials.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from battlab.cell import Cell
 
 
 def _json(path: Path, data: Any) -> None:
-    from battlab.identify.workflow import json_default
+    from battlab.jsonable import json_default
 
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(data, indent=1, default=json_default))
@@ -32,10 +33,14 @@ def cumulative_fit(
     output: Path,
     progress: Callable[[float, float, str], None],
 ) -> dict[str, Any]:
-    """Fit ``stages`` (:class:`battlab.identify.fit.Stage`) cumulatively from ``cell``; write the BPX cell and
-    ``<stem>.summary.json`` beside it; return the summary: per parameter value, 95 % interval and bound flag, the
-    stages' reports, and on the virtual lab the recovery table against the truth."""
-    from battlab.identify import fit as F
+    """Fit ``stages`` (:class:`battlab.identify.fit.Stage`) cumulatively from ``cell`` with the one engine and its
+    defaults (:func:`battlab.identify.cumulative.fit_cumulative`: radii held, uninformed parameters refused); write
+    the BPX cell and ``<stem>.summary.json`` beside it; return the summary (:mod:`battlab.identify.fit_summary`:
+    per parameter value, interval and whether it can be trusted, the invariants, the stages) with, on the virtual
+    lab, the recovery table against the truth."""
+    from battlab.identify.cumulative import fit_cumulative
+    from battlab.identify.fit_steps import bpx_metadata
+    from battlab.identify.fit_summary import dynamic_summary
     from battlab.identify.forward import ForwardModel
 
     progress(0, len(stages), "stage 1")
@@ -44,75 +49,103 @@ def cumulative_fit(
         progress(k, len(stages), f"stage {k} of {len(stages)} done ({res.convergence.iterations} evaluations)")
 
     fm = ForwardModel(cell, v_margin=0.15)
-    opts = F.Options(max_nfev=camp.config.fit.max_evaluations, polish=camp.config.fit.polish)
-    results = F.fit_groupwise(cell, stages, options=opts, forward=fm, progress=done)
-    last = results[-1]
-    st = last.statistics
-    params = {
-        e.name: {
-            "value": e.value,
-            "ci95": list(e.ci95) if e.ci95 else [None, None],
-            "at_bound": e.at_bound is not None,
-            "bound": e.at_bound,
-            "identifiable": e.identifiable,
-            "set_identified": e.set_identified,
-            "theta_bar": e.theta_bar,
-        }
-        for e in st.estimates
-    }
-    summary: dict[str, Any] = {
-        "parameters": params,
-        "rmse_mV": last.rmse_mV,
-        "converged": all(r.convergence.converged for r in results),
-        "s2": st.s2,
-        "stages": [
-            {
-                "parameters": list(r.names),
-                "experiments": list(r.experiments),
-                "iterations": r.convergence.iterations,
-                "converged": r.convergence.converged,
-                "reason": r.convergence.reason,
-                "seconds": r.convergence.seconds,
-                "cost_start": r.convergence.cost_start,
-                "cost": r.convergence.cost,
-            }
-            for r in results
-        ],
-        "invariants": {i.name: {"value": i.value, "ci95": list(i.ci95)} for i in st.invariants},
-        "data_hours": float(sum(e.hours for s in stages for e in s.experiments)),
-    }
-    if camp.tester.virtual:
-        summary["recovery"] = recovery(st.estimates, Cell.load(camp.tester.truth), cell)
+    results = fit_cumulative(cell, stages, settings(camp), forward=fm, on_stage=done)
+    summary = dynamic_summary(results, len(results))
+    summary["data_hours"] = float(sum(e.hours for s in stages for e in s.experiments))
+    finish(summary, camp, cell)
     output.parent.mkdir(parents=True, exist_ok=True)
-    ci = {e.name: list(e.ci95) for e in st.estimates if e.ci95}
-    last.cell.renamed(output.name.removesuffix(".bpx.json")).to_bpx(output, confidence_intervals=ci)
+    extra = bpx_metadata(summary, results[-1])
+    results[-1].cell.renamed(output.name.removesuffix(".bpx.json")).to_bpx(output, **extra)
     _json(output.with_name(output.name.removesuffix(".bpx.json") + ".summary.json"), summary)
     return summary
 
 
-def recovery(estimates: Sequence[Any], truth: Cell, start: Cell) -> list[dict[str, Any]]:
-    """Per parameter: start, truth, estimate, interval, whether it covers the truth, and whether the truth sits on a
-    bound (those are excluded from the coverage count, as decided in docs/decisions.md)."""
+def settings(camp: Any) -> Any:
+    """The campaign's fit settings (``[fit]``), with the engine's defaults for the rest."""
+    from battlab.identify.cumulative import FitSettings
+
+    return FitSettings(max_evaluations=camp.config.fit.max_evaluations, polish=camp.config.fit.polish)
+
+
+def finish(summary: dict[str, Any], camp: Any, start: Cell) -> None:
+    """On the virtual lab: the recovery table of a fit's summary against the truth (in place)."""
+    if camp.tester.virtual:
+        truth = Cell.load(camp.tester.truth)
+        summary["recovery"] = recovery(summary, truth, start)
+        summary["recovery_invariants"] = invariant_recovery(summary, truth, start)
+
+
+def recovery(summary: dict[str, Any], truth: Cell, start: Cell) -> list[dict[str, Any]]:
+    """Per parameter: start, truth, estimate, interval, whether it covers the truth and whether the
+    interval is trusted (:mod:`battlab.identify.fit_summary`), and whether the truth sits on a bound (those are
+    excluded from the coverage count, as decided in docs/decisions.md)."""
+    from battlab import parameters
+
     rows = []
-    for e in estimates:
-        t = float(truth[e.name])
-        tb = float(truth.normalised(e.name))
+    for name, e in summary["parameters"].items():
+        if name not in parameters.SPECS and name not in parameters.EXTENSION_SPECS:
+            continue
+        t = float(truth.value(name))
+        tb = float(truth.normalised(name))
+        ci = e["ci95"] if e.get("ci95") and e["ci95"][0] is not None else None
         rows.append(
             {
-                "parameter": e.name,
-                "start": float(start[e.name]),
+                "parameter": name,
+                "start": float(start.value(name)),
                 "truth": t,
-                "estimate": e.value,
-                "ci95": list(e.ci95) if e.ci95 else None,
-                "covered": e.covers(t),
+                "estimate": e["value"],
+                "ci95": ci,
+                "covered": _covers(ci, t),
+                "trusted": e.get("trusted"),
+                "untrusted_because": e.get("untrusted_because", []),
                 "truth_on_bound": bool(tb <= 1e-6 or tb >= 1 - 1e-6),
-                "estimate_at_bound": e.at_bound,
-                "set_identified": e.set_identified,
-                "theta_bar": {"start": float(start.normalised(e.name)), "truth": tb, "estimate": e.theta_bar},
-                "sigma_bar": e.sigma_bar,
+                "estimate_at_bound": e.get("bound"),
+                "set_identified": e.get("set_identified", False),
+                "theta_bar": {"start": float(start.normalised(name)), "truth": tb, "estimate": e.get("theta_bar")},
             }
         )
     return rows
+
+
+def invariant_recovery(summary: dict[str, Any], truth: Cell, start: Cell) -> list[dict[str, Any]]:
+    """Per identifiable invariant (τ, κ, ρ of an electrode whose four orbit parameters were fitted): start, truth,
+    estimate, interval, whether it covers the truth and whether it is trusted."""
+    from battlab.identify.symmetry import INVARIANTS
+
+    rows = []
+    for name, inv in summary.get("invariants", {}).items():
+        powers = next(d[name] for d in INVARIANTS.values() if name in d)
+
+        def value(c: Cell, powers: dict[str, int] = powers) -> float:
+            out = 1.0
+            for p, k in powers.items():
+                out *= float(c[p]) ** k
+            return out
+
+        rows.append(
+            {
+                "parameter": name,
+                "invariant": inv["definition"],
+                "start": value(start),
+                "truth": value(truth),
+                "estimate": inv["value"],
+                "ci95": inv["ci95"],
+                "covered": _covers(inv["ci95"], value(truth)),
+                "trusted": inv.get("trusted"),
+                "untrusted_because": inv.get("untrusted_because", []),
+                "truth_on_bound": False,
+                "estimate_at_bound": None,
+                "set_identified": False,
+            }
+        )
+    return rows
+
+
+def _covers(ci: Sequence[float] | None, value: float) -> bool | None:
+    if ci is None:
+        return None
+    lo, hi = ci
+    return bool(lo * (1 - 1e-12) <= value <= hi * (1 + 1e-12)) if lo > 0 else bool(lo <= value <= hi)
 
 
 def score(
@@ -202,7 +235,7 @@ def residuals(logs: Mapping[str, Path], cell: Cell, out: Path) -> dict[str, Any]
 
 
 def _plain(x: Any) -> Any:
-    from battlab.identify.workflow import json_default
+    from battlab.jsonable import json_default
 
     return json.loads(json.dumps(x, default=json_default))
 

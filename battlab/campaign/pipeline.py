@@ -1,4 +1,5 @@
-"""The campaign's stages, in order, as functions registered with the stage runner (:mod:`battlab.campaign.stages`).
+"""The campaign's stages, in order, each one declared unit (:class:`battlab.campaign.unit.Unit`): what it needs,
+the settings it reads, whether it uses the tester, the files it writes and its report section.
 
 capacity check → OCV test → equilibrium fit → library → sensitivity sweep → groups → repeated trials and the
 noise model → designs per group → the designed experiments on the tester → cumulative fits with intervals →
@@ -6,99 +7,155 @@ conventional baseline (its tests on the tester, fitted the same way) → validat
 nominal vs conventional vs OED) → diagnosis (residual analysis) → capacity check again → BPX export → report.
 
 Each stage writes its artefacts under the campaign directory and returns its files, a JSON summary and the lab
-hours it used. Runs on the tester are logged under ``runs/``; a run that does not complete fails its stage.
+hours it used. Runs on the tester are logged under ``runs/``; a run that does not complete fails its stage. To add
+a stage: write its function of the campaign (and its report section), and add one :class:`Unit` line below.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
-from battlab.campaign.assessment import conventional, diagnosis, export, fit_oed, report, validation
+from battlab.campaign import report as R
+from battlab.campaign.assessment import conventional, diagnosis, export, fit_oed, validation
 from battlab.campaign.characterisation import capacity, equilibrium, noise, ocv
 from battlab.campaign.context import Campaign
 from battlab.campaign.experiment_design import design, experiments, groups, library, sweep
 from battlab.campaign.stages import Stage, StageContext, StageOutput
+from battlab.campaign.unit import Unit, resolve_needs
 
-__all__ = ["ORDER", "STAGE_NAMES", "Campaign", "stages"]
+__all__ = ["STAGE_NAMES", "UNITS", "Campaign", "stages"]
 
 
-#: (name, title, needs) in order; the runner checks that each need comes before
-ORDER: tuple[tuple[str, str, tuple[str, ...]], ...] = (
-    ("capacity_before", "capacity check (C/3 after CCCV)", ()),
-    ("ocv", "OCV test (one C/20 cycle)", ()),
-    ("equilibrium", "equilibrium fit", ("ocv",)),
-    ("library", "input library", ()),
-    ("sweep", "sensitivity sweep", ("library", "equilibrium")),
-    ("groups", "parameter groups", ("sweep",)),
-    ("noise", "repeated trials and noise model", ("library", "equilibrium")),
-    ("design", "optimal designs per group", ("sweep", "groups", "noise")),
-    ("experiments", "designed experiments on the tester", ("library", "design", "equilibrium")),
-    ("fit", "cumulative fits with intervals", ("equilibrium", "noise", "design", "experiments")),
-    ("conventional", "conventional baseline", ("equilibrium", "noise")),
-    (
+def _report(camp: Campaign):  # noqa: ANN202 - the report stage of the units before it
+    def run(ctx: StageContext) -> StageOutput:
+        from battlab.campaign.context import rel_path
+
+        page = R.write_report(ctx.directory, {k: v.summary for k, v in ctx.inputs.items()}, ctx.inputs, camp, UNITS)
+        return StageOutput({"report": rel_path(ctx, page)}, {"report": rel_path(ctx, page)})
+
+    return run
+
+
+T = ("campaign",)  # every stage on the tester reads the cell's rating and the ambient
+UNITS: tuple[Unit, ...] = (
+    Unit(
+        "capacity_before",
+        "capacity check (C/3 after CCCV)",
+        lambda c: capacity(c, "before"),
+        (),
+        T,
+        True,
+        ("log", "health"),
+        R.capacity_before,
+    ),
+    Unit("ocv", "OCV test (one C/20 cycle)", ocv, (), T, True, ("log", "health")),
+    Unit(
+        "equilibrium", "equilibrium fit", equilibrium, ("ocv",), T, False, ("cell", "summary", "figure"), R.equilibrium
+    ),
+    Unit("library", "input library", library, (), ("library",), False, ("library",)),
+    Unit(
+        "sweep",
+        "sensitivity sweep",
+        sweep,
+        ("library", "equilibrium"),
+        ("campaign", "quick"),
+        False,
+        ("store",),
+        R.sweep,
+    ),
+    Unit("groups", "parameter groups", groups, ("sweep",), ("design",), False, ("groups", "ranking_figure"), R.groups),
+    Unit(
+        "noise",
+        "repeated trials and noise model",
+        noise,
+        ("library", "equilibrium"),
+        ("campaign", "noise"),
+        True,
+        ("model", "figure", "health"),
+        R.noise,
+    ),
+    Unit(
+        "design",
+        "optimal designs per group",
+        design,
+        ("sweep", "groups", "noise"),
+        ("design",),
+        False,
+        ("plan", "summary", "figure"),
+        R.design,
+    ),
+    Unit(
+        "experiments",
+        "designed experiments on the tester",
+        experiments,
+        ("library", "design", "equilibrium"),
+        ("campaign", "quick"),
+        True,
+        ("log_*", "health"),
+    ),
+    Unit(
+        "fit",
+        "cumulative fits with intervals",
+        fit_oed,
+        ("equilibrium", "noise", "design", "experiments"),
+        ("fit",),
+        False,
+        ("cell", "summary"),
+        R.parameters,
+    ),
+    Unit(
+        "conventional",
+        "conventional baseline",
+        conventional,
+        ("equilibrium", "noise"),
+        ("campaign", "quick", "fit", "conventional"),
+        True,
+        ("log_*", "cell", "health"),
+        R.conventional,
+    ),
+    Unit(
         "validation",
         "validation (nominal, conventional, OED)",
+        validation,
         ("library", "equilibrium", "conventional", "fit"),
+        ("campaign", "quick", "validation"),
+        True,
+        ("log_*", "summary", "health"),
+        R.validation,
     ),
-    ("diagnosis", "diagnosis (residual analysis)", ("fit", "validation")),
-    ("capacity_after", "capacity check again", ()),
-    ("export", "BPX export", ("fit",)),
-    ("report", "report.html", ()),
+    Unit(
+        "diagnosis",
+        "diagnosis (residual analysis)",
+        diagnosis,
+        ("fit", "validation"),
+        (),
+        False,
+        ("summary",),
+        R.diagnosis,
+    ),
+    Unit(
+        "capacity_after",
+        "capacity check again",
+        lambda c: capacity(c, "after"),
+        (),
+        T,
+        True,
+        ("log", "health"),
+        R.capacity,
+        after_all="tester",
+    ),
+    Unit("export", "BPX export", export, ("fit",), (), False, ("bpx",), R.export),
+    Unit("report", "report.html", _report, (), ("campaign", "quick", "stages"), False, ("report",), after_all="all"),
 )
-STAGE_NAMES = tuple(n for n, _, _ in ORDER)
-
-_FUNCS: dict[str, Callable[[Campaign], Callable[[StageContext], StageOutput]]] = {
-    "capacity_before": lambda c: capacity(c, "before"),
-    "ocv": ocv,
-    "equilibrium": equilibrium,
-    "library": library,
-    "sweep": sweep,
-    "groups": groups,
-    "noise": noise,
-    "design": design,
-    "experiments": experiments,
-    "fit": fit_oed,
-    "conventional": conventional,
-    "validation": validation,
-    "diagnosis": diagnosis,
-    "capacity_after": lambda c: capacity(c, "after"),
-    "export": export,
-    "report": report,
-}
+STAGE_NAMES = tuple(u.name for u in UNITS)
 
 
 def stages(camp: Campaign) -> list[Stage]:
-    """The campaign's stages with their settings (what decides a rerun) and needs; ``[stages] skip`` leaves stages
-    out (and every stage that needs one of them). The report needs every stage before it."""
-    cfg = camp.config.as_dict()
+    """The campaign's runnable stages; ``[stages] skip`` leaves stages out (and every stage that needs one)."""
     skip = set(camp.config.stages.skip)
-    settings = {
-        "capacity_before": {"campaign": cfg["campaign"]},
-        "ocv": {"campaign": cfg["campaign"]},
-        "library": {"library": cfg["library"]},
-        "sweep": {"quick": camp.config.quick},
-        "groups": {"design": cfg["design"]},
-        "noise": {"noise": cfg["noise"]},
-        "design": {"design": cfg["design"]},
-        "fit": {"fit": cfg["fit"]},
-        "experiments": {"rest_after_s": camp.rest_after_s},
-        "validation": {"rest_after_s": camp.rest_after_s, "quick": camp.config.quick, "set": cfg["validation"]},
-        "conventional": {
-            "fit": cfg["fit"],
-            "quick": camp.config.quick,
-            "rest_after_s": camp.rest_after_s,
-            "set": cfg["conventional"],
-        },
-        "capacity_after": {"campaign": cfg["campaign"]},
-    }
+    units = {u.name: u for u in UNITS}
     out: list[Stage] = []
-    for name, title, needs in ORDER:
-        if name in skip or any(n in skip for n in needs):
-            skip.add(name)
+    for u in UNITS:
+        if u.name in skip or any(n in skip for n in u.needs):
+            skip.add(u.name)
             continue
-        if name == "report":
-            needs = tuple(s.name for s in out)
-        if name == "capacity_after":  # after every run of the campaign
-            needs = tuple(s.name for s in out if s.name in ("experiments", "conventional", "validation", "noise"))
-        out.append(Stage(name, _FUNCS[name](camp), needs, settings.get(name, {}), title))
+        out.append(u.stage(camp, resolve_needs(u, out, skip, units)))
     return out

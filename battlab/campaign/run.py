@@ -57,7 +57,7 @@ def run_campaign(
 
     def track(ev: Any) -> None:
         if ev.kind == "start":
-            current[0] = ev.stage
+            current[0] = ev.task
 
     t0 = time.perf_counter()
     try:
@@ -103,6 +103,10 @@ def summarise(records: Sequence[StageRecord], config: CampaignConfig, tester: Te
         out["recovery"] = [
             {k: r[k] for k in ("parameter", "truth", "estimate", "ci95", "covered", "truth_on_bound")}
             for r in by["fit"].output.summary["recovery"]
+        ]
+        out["recovery_invariants"] = [
+            {k: r[k] for k in ("parameter", "truth", "estimate", "ci95", "covered", "trusted")}
+            for r in by["fit"].output.summary.get("recovery_invariants", [])
         ]
     if "validation" in by:
         v = by["validation"].output.summary

@@ -12,7 +12,8 @@ reads and the content hashes of the files of the stages it needs, so:
 - a directory that holds another campaign (different identity) is refused before anything runs, so nothing of
   it is overwritten.
 
-Progress goes to subscribers (``on_stage(event)``), never printed here.
+Progress goes to subscribers as :class:`battlab.progress.ProgressEvent` values (task: the stage's name; kinds
+``start``, ``advance``, ``stop``, ``skipped``, ``failed``; payload :class:`StageInfo`), never printed here.
 """
 
 from __future__ import annotations
@@ -24,8 +25,9 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
+from battlab.progress import ProgressEvent, emit
 from protocols.errors import InputError
 
 STATE_FILE = "campaign.json"
@@ -73,22 +75,17 @@ class Stage:
 
 
 @dataclass(frozen=True)
-class StageEvent:
-    """A progress document: ``kind`` is ``start``, ``progress``, ``skipped``, ``done`` or ``failed``."""
+class StageInfo:
+    """The payload of a campaign stage's progress events: its position (0-based ``index`` of ``total``), its title
+    and, when it finished, its wall time [s]."""
 
-    kind: str
-    stage: str
     index: int
     total: int
     title: str = ""
-    done: float = 0.0
-    of: float = 0.0
-    text: str = ""
     wall_s: float = 0.0
 
 
-class Subscriber(Protocol):
-    def __call__(self, event: StageEvent) -> None: ...
+Subscriber = Callable[[ProgressEvent], None]
 
 
 @dataclass(frozen=True)
@@ -222,9 +219,10 @@ def run_stages(
     records: dict[str, StageRecord] = {}
     total = len(stages)
 
-    def emit(ev: StageEvent) -> None:
-        for sub in subscribers:
-            sub(ev)
+    def send(
+        kind: str, k: int, stage: Stage, done: float = 0, of: float = 0, text: str = "", wall: float = 0.0
+    ) -> None:
+        emit(subscribers, ProgressEvent(stage.name, kind, done, of, text, StageInfo(k, total, stage.title, wall)))
 
     for k, stage in enumerate(stages):
         key = stage_key(stage, records)
@@ -233,19 +231,19 @@ def run_stages(
             assert entry is not None
             out = StageOutput(entry["files"], entry["summary"], float(entry.get("lab_hours", 0.0)))
             records[stage.name] = StageRecord(stage.name, key, "skipped", out, float(entry["wall_s"]), entry["sha256"])
-            emit(StageEvent("skipped", stage.name, k, total, stage.title))
+            send("skipped", k, stage)
             continue
-        emit(StageEvent("start", stage.name, k, total, stage.title))
+        send("start", k, stage)
 
         def progress(done: float, of: float, text: str = "", _k: int = k, _s: Stage = stage) -> None:
-            emit(StageEvent("progress", _s.name, _k, total, _s.title, done, of, text))
+            send("advance", _k, _s, done, of, text)
 
         ctx = StageContext(directory, {n: records[n].output for n in stage.needs}, progress)
         t0 = time.perf_counter()
         try:
             out = stage.run(ctx)
         except BaseException as exc:
-            emit(StageEvent("failed", stage.name, k, total, stage.title, text=str(exc)))
+            send("failed", k, stage, text=str(exc))
             raise
         wall = time.perf_counter() - t0
         hashes = {}
@@ -257,5 +255,5 @@ def run_stages(
         rec = StageRecord(stage.name, key, "ran", out, wall, hashes)
         state.record(rec)
         records[stage.name] = rec
-        emit(StageEvent("done", stage.name, k, total, stage.title, wall_s=wall))
+        send("stop", k, stage, wall=wall)
     return [records[s.name] for s in stages]

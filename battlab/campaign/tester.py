@@ -26,8 +26,10 @@ from typing import Any
 import numpy as np
 
 from battlab.cell import Cell
-from drivers.errors import InstrumentFault
-from drivers.interfaces import Measurement, ProtectionState
+from drivers.clock import Clock
+from drivers.defaults import ChamberDefaults, CyclerDefaults
+from drivers.errors import InstrumentFault, NotSupported
+from drivers.interfaces import CyclerCapabilities, Measurement, ProtectionState
 from drivers.virtual.instruments import (
     INH,
     LIM_POS,
@@ -122,10 +124,19 @@ class LockstepLab:
         """Nothing runs in the background."""
 
 
-class LockstepCycler:
-    """:class:`drivers.interfaces.Cycler` on the simulated cycler, called in-process."""
+class LockstepCycler(CyclerDefaults):
+    """:class:`drivers.interfaces.Cycler` on the simulated cycler, called in-process (no link: no retries, no link
+    timeout, nothing to resync)."""
 
     name = "virtual cycler (lock-step)"
+    capabilities = CyclerCapabilities(
+        clock=True,
+        timestamps=True,
+        low_voltage_cutoff=True,
+        temperature_limit=True,
+        watchdog=True,
+        clear_protection=True,
+    )
 
     def __init__(self, lab: LockstepLab) -> None:
         self._lab = lab
@@ -137,6 +148,9 @@ class LockstepCycler:
 
     def identify(self) -> str:
         return "battlab,virtual cycler (lock-step, in-process),0,1"
+
+    def clock(self) -> Clock:
+        return self._lab.clock
 
     def initialize(self) -> None:
         c = self._io()
@@ -181,8 +195,8 @@ class LockstepCycler:
         c = self._io()
         c.current_limit, c.current_limit_neg = float(charge_A), -float(discharge_A)
 
-    def set_temperature_limit(self, T_K: float) -> None:
-        self._io().temperature_protection_K = float(T_K)
+    def set_temperature_limit(self, T_max_K: float) -> None:
+        self._io().temperature_protection_K = float(T_max_K)
 
     def protection(self) -> ProtectionState:
         c = self._io()
@@ -213,7 +227,7 @@ class LockstepCycler:
         """Nothing to release."""
 
 
-class LockstepChamber:
+class LockstepChamber(ChamberDefaults):
     """:class:`drivers.interfaces.Chamber` on the simulated chamber, called in-process."""
 
     name = "virtual chamber (lock-step)"
@@ -288,7 +302,7 @@ class Tester:
         ):
             try:
                 dev = opener(url)
-            except InputError:
+            except (InputError, NotSupported):  # a user's mistake, or an instrument without what was asked
                 raise
             except Exception as exc:
                 why = " ".join(str(exc).split()) or type(exc).__name__

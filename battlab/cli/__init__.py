@@ -1,4 +1,5 @@
-"""The ``battlab`` command. Every user mistake is one line on stderr and exit code 2, never a traceback."""
+"""The ``battlab`` command. Every user mistake is one line on stderr and exit code 2, never a traceback; so is an
+instrument asked for what it does not have (:class:`drivers.errors.NotSupported`)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import sys
 import click
 
 from battlab import __version__
+from drivers.errors import NotSupported
 from protocols.errors import InputError
 
 
@@ -32,7 +34,7 @@ class _Main(click.Group):
     def invoke(self, ctx: click.Context) -> object:
         try:
             return super().invoke(ctx)
-        except InputError as exc:
+        except (InputError, NotSupported) as exc:
             click.echo(f"error: {exc}", err=True)
             sys.exit(2)
         except (FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError, FileExistsError) as exc:

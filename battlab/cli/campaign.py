@@ -45,21 +45,22 @@ class StageDisplay:
         self._overall = self._bar.add_task("campaign", total=total)
 
     def __call__(self, ev: Any) -> None:
-        if self.quiet:
+        info = ev.payload
+        if self.quiet or info is None:
             return
         if self._bar is None:
-            self._start(ev.total)
+            self._start(info.total)
         bar = self._bar
-        label = f"[{ev.index + 1}/{ev.total}] {ev.title or ev.stage}"
+        label = f"[{info.index + 1}/{info.total}] {info.title or ev.task}"
         if ev.kind == "start":
             self._stage = bar.add_task(label, total=None)
-        elif ev.kind == "progress" and self._stage is not None:
-            bar.update(self._stage, total=max(ev.of, 1), completed=ev.done, description=f"{label}: {ev.text}")
-        elif ev.kind in ("done", "skipped", "failed"):
+        elif ev.kind == "advance" and self._stage is not None:
+            bar.update(self._stage, total=max(ev.total, 1), completed=ev.done, description=f"{label}: {ev.text}")
+        elif ev.kind in ("stop", "skipped", "failed"):
             if self._stage is not None:
                 bar.remove_task(self._stage)
                 self._stage = None
-            what = {"done": f"done in {ev.wall_s:.1f} s", "skipped": "unchanged (kept)", "failed": "FAILED"}[ev.kind]
+            what = {"stop": f"done in {info.wall_s:.1f} s", "skipped": "unchanged (kept)", "failed": "FAILED"}[ev.kind]
             bar.console.print(f"{label}: {what}")
             bar.advance(self._overall)
 

@@ -46,9 +46,10 @@ def diagnose(
     """Find which model extension explains where CELL disagrees with DATA, and check it on held-out data."""
     from battlab.diagnose import workflow
     from battlab.io.paths import check_output_path
+    from battlab.progress import lines
 
     out = check_output_path(output, directory=True, create=True)
-    rep = workflow.diagnose(
+    options = workflow.DiagnoseOptions(
         data,
         cell_name,
         held_out=held_out,
@@ -58,8 +59,8 @@ def diagnose(
         fix_sign=fix_sign,
         causes=causes or None,
         max_iter=max_iter,
-        on_step=lambda text: click.echo(f"... {text}", err=True),
     )
+    rep = workflow.diagnose(options, [lines(lambda text: click.echo(f"... {text}", err=True))])
     for w in rep.warnings:
         click.echo(f"warning: {w}", err=True)
     page = rep.write(out)

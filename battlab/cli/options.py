@@ -296,15 +296,63 @@ def apply_ocps(cell: Any, specs: Sequence[str]) -> Any:
     return cell
 
 
+#: the range of an options value's field that a command-line option sets (:func:`dataclass_options`), by name
+FIELD_BOUNDS = {
+    "soc0": SOC,
+    "dt": DT,
+    "max_iter": EVALUATIONS,
+    "polish": Bounds("the number of evaluations", low=0.0),
+    "rated_capacity": CAPACITY,
+}
+
+
+def dataclass_options(fields: Sequence[Any]) -> Any:
+    """Click options made from dataclass fields whose metadata holds their help (``help``; optional ``flag``,
+    ``metavar``, ``choices``, ``type`` "path", ``cli_default``): one declaration of each setting, in the options
+    value the workflow takes. A boolean field is a flag; the option's default is the field's. A field named in
+    :data:`FIELD_BOUNDS` is checked against its range, stated in the help, as the other commands' options are."""
+
+    def decorate(fn: Any) -> Any:
+        for f in reversed(list(fields)):
+            meta = f.metadata
+            flags = meta.get("flag") or (f"--{f.name.replace('_', '-')}",)
+            default = meta.get("cli_default", f.default)
+            kw: dict[str, Any] = {"help": meta["help"], "default": default}
+            bounds = FIELD_BOUNDS.get(f.name)
+            if bounds is not None:
+                kw["help"] = f"{meta['help'].rstrip('.')}; {bounds.describe()}."
+                kw["callback"] = _checked(flags[0], bounds)
+            if meta.get("metavar"):
+                kw["metavar"] = meta["metavar"]
+            if isinstance(f.default, bool):
+                kw["is_flag"] = True
+            elif meta.get("choices"):
+                kw["type"] = click.Choice(list(meta["choices"]))
+                kw["show_default"] = True
+            elif meta.get("type") == "path":
+                kw["type"] = click.Path(dir_okay=False)
+            elif isinstance(f.default, int | float) and f.default is not None:
+                kw["type"] = type(f.default)
+                kw["show_default"] = True
+            elif f.type in ("float | None", "float"):
+                kw["type"] = float
+            fn = click.option(*flags, f.name, **kw)(fn)
+        return fn
+
+    return decorate
+
+
 __all__ = [
     "AMBIENT_OPTION",
     "CAPACITY",
     "DATA_FORMATS",
     "DT",
+    "FIELD_BOUNDS",
     "PHYSICS",
     "SOC",
     "TEMPERATURE",
     "VOLTAGE",
+    "dataclass_options",
     "AliasChoice",
     "Bounds",
     "ambient_option",

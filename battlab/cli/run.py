@@ -1,8 +1,8 @@
 """``battlab run PLAN`` and ``battlab runs list | show | resume``: the experiment runner from the command line.
 
 Exit codes: 0 completed, 1 aborted (the reason on stderr), 130 stopped by Ctrl-C, 2 a user error (bad plan,
-limits, URL, an instrument that cannot be reached or does not answer before the run starts: one line, and nothing
-catalogued or logged).
+limits, URL, an instrument that cannot be reached, does not answer or lacks what was asked of it before the run
+starts: one line, and nothing catalogued or logged).
 """
 
 from __future__ import annotations
@@ -45,12 +45,17 @@ def _logging(verbose: bool) -> None:
 
 @click.command("run")
 @click.argument("plan", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--cycler", "cycler_url", required=True, help="Cycler URL: socket://HOST:PORT, /dev/ttyUSB0 or virtual.")
+@click.option(
+    "--cycler",
+    "cycler_url",
+    required=True,
+    help="Cycler URL, e.g. socket://HOST:PORT, /dev/ttyUSB0 or virtual (an unknown scheme lists the registered ones).",
+)
 @click.option(
     "--chamber",
     "chamber_url",
     required=True,
-    help="Chamber URL: modbus-tcp://HOST:PORT, modbus-rtu://DEV, espec://HOST:PORT or virtual.",
+    help="Chamber URL, e.g. modbus-tcp://HOST:PORT, espec://HOST:PORT or virtual.",
 )
 @click.option(
     "-o",

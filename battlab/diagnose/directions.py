@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from battlab import parameters
+from battlab import causes, parameters
 from battlab.cell import Cell
 from battlab.identify.forward import ForwardModel
 from battlab.model.extensions import CATALOG
@@ -23,26 +23,12 @@ from protocols.profile import Profile
 
 #: causes tested by default: every catalog extension whose voltage is differentiable at "off" (the double layer's is
 #: not at C_dl = 0: for any C_dl > 0 the right limit at a current step holds the overpotential)
-DEFAULT_CAUSES: tuple[str, ...] = tuple(k for k in CATALOG if k != "double_layer")
+DEFAULT_CAUSES: tuple[str, ...] = tuple(c.key for c in causes.extended() if c.differentiable_at_off)
 
-#: per catalog cause: a typical size of its parameters' change from "off" (physical units, magnitude; the middle of
-#: the realistic ranges of ``benchmarks/bench_diagnose.py``'s ``SIZES``, sources there), against which the smallest
-#: change a data set would detect is compared (a parameter not listed, e.g. a hysteresis decay rate, is no size)
-TYPICAL: dict[str, dict[str, float]] = {
-    "contact_resistance": {"R_c": 0.005},
-    "current_sensor": {"offset": 0.015, "gain": 0.005},
-    "thermal": {
-        **{f"dE_{k}": 10e3 for k in ("D_s_n", "D_s_p", "k_n", "k_p", "D_e", "kappa")},
-        "h2a_scale": 0.4,
-        "C_scale": 0.2,
-        "dUdT_offset": 5e-5,
-    },
-    "equilibrium": {"d_sto_n": 0.008, "d_sto_p": 0.008, "dU": 0.003},
-    "hysteresis": {"M_n": 0.012, "M_p": 0.005},
-    "double_layer": {"C_dl_n": 0.3, "C_dl_p": 0.3},
-    "capacity_fade": {"I_side": 1.5e-3, "lam_n": 1e-3, "lam_p": 1e-3},
-    "electrolyte": {"De_slope": 0.4, "kappa_slope": 0.4, "dlnf_slope": 0.4},
-}
+#: per catalog cause: a typical size of its parameters' change from "off" (physical units, magnitude, as the causes
+#: declare them; a parameter not listed, e.g. a hysteresis decay rate, is no size), against which the smallest
+#: change a data set would detect is compared
+TYPICAL: dict[str, dict[str, float]] = {c.key: c.typical for c in causes.extended() if c.typical}
 
 
 @dataclass(frozen=True)

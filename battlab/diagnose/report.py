@@ -10,16 +10,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from battlab.identify.workflow import json_default
+from battlab.jsonable import json_default
 
 
 def headline(summary: Mapping[str, Any]) -> tuple[str, str]:
     """The verdict in one line and its colour (``"good"`` green, ``"warn"`` amber, ``"bad"`` red), from the summary's
     numbers: ``cause``, ``cannot_tell`` and ``residual_over_noise`` (the mean squared residual over the data's own
     noise variance, s²). Green only when no cause is named, the data leave none undecided and s² is at most
-    :data:`battlab.diagnose.workflow.S2_REFIT`; red when a cause is named or s² is above that (the model is wrong
+    :data:`battlab.diagnose.confirm.S2_REFIT`; red when a cause is named or s² is above that (the model is wrong
     whatever was named); amber when the data cannot decide or their noise level is unknown."""
-    from battlab.diagnose.workflow import S2_REFIT
+    from battlab.diagnose.confirm import S2_REFIT
 
     cause = summary.get("cause")
     s2 = summary.get("residual_over_noise")

@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from battlab import parameters
+from battlab import causes, parameters
 from battlab.identify.experiments import Experiment
-from battlab.identify.informing import INFORMED_BY, one_ambient, rests_after_both_directions
+from battlab.identify.informing import INFORMED_BY
 
 
 def cause_entry(cause: str, why: str, **extra: Any) -> dict[str, Any]:
@@ -23,18 +23,16 @@ def cause_entry(cause: str, why: str, **extra: Any) -> dict[str, Any]:
 
 def untestable(train: Sequence[Experiment], named: str | None, i_rest: float) -> list[dict[str, Any]]:
     """Causes this diagnosis cannot decide on whatever their size (so "no cause" says nothing about them), with the
-    experiment that would: the double layer, never score-tested (its voltage is not differentiable at C_dl = 0;
-    its effect at 1 s samples can be mV, as the benchmark's 0.2 F/m² case shows, but only a fit can weigh it); the
-    thermal extension's activation energies when every experiment has one ambient (they act only through a change
-    of temperature; the self-heating of a few kelvin is what the base scales absorb); hysteresis when the current
-    never changes direction."""
-    out = {}
-    out["double_layer"] = "not score-tested: its voltage is not differentiable at its off value C_dl = 0"
-    if one_ambient(train):
-        out["thermal"] = "one ambient temperature: activation energies are seen only through a change of temperature"
-    if not rests_after_both_directions(train, i_rest):
-        out["hysteresis"] = "no rest after a charge and after a discharge"
-    return [cause_entry(c, w) for c, w in out.items() if c != named]
+    experiment that would, as each cause declares (:meth:`battlab.causes.cause.Cause.why_untestable`): e.g. the
+    double layer, never score-tested (its voltage is not differentiable at C_dl = 0); the thermal extension's
+    activation energies when every experiment has one ambient; hysteresis when the current never changes
+    direction."""
+    out = []
+    for c in causes.extended():
+        why = c.why_untestable(train, i_rest)
+        if why is not None and c.key != named:
+            out.append(cause_entry(c.key, why))
+    return out
 
 
 def detectable_sizes(

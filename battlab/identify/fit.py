@@ -14,7 +14,7 @@ Group-wise and cumulative (docs/decisions.md): stage k fits the parameters of gr
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -94,6 +94,8 @@ class FitResult:
     experiments: tuple[str, ...] = ()
     stage: int = 1
     extra: dict[str, object] = field(default_factory=dict)
+    #: per experiment the noise level its weights assume [mV] (√ of the mean variance): the RMSE's yardstick
+    noise_mV: dict[str, float] = field(default_factory=dict)
 
     def report(self) -> dict[str, object]:
         """A JSON-able fit report (parameters, intervals, convergence, RMSEs)."""
@@ -122,6 +124,7 @@ class FitResult:
             ),
             "rmse_mV": self.rmse_mV,
             "rmse_before_mV": self.rmse_before_mV,
+            "noise_mV": self.noise_mV,
             "estimates": {
                 e.name: {
                     "value": e.value,
@@ -189,6 +192,7 @@ def fit(
     stage: int = 1,
     soc_span: float = 0.0,
     ageing: Ageing | None = None,
+    on_evaluation: Callable[[int, float], None] | None = None,
 ) -> FitResult:
     """Fit the dynamic parameters ``names`` of ``cell`` to ``experiments`` (eq. 41 by LM, eqs. 42–43).
 
@@ -203,6 +207,8 @@ def fit(
     capacity, fitted with ``names`` (finite-difference columns, as the start SOCs); ``names``' statistics are
     marginal over them, and ``extra["ageing"]`` holds each file's values with 95 % intervals (from the covariance of
     all parameters). The fitted cell stays at the start cell's ageing state (the per-file values are relative to it).
+
+    ``on_evaluation(k, cost)``: called after the k-th simulation of all experiments (cost ½χ²), for progress.
     """
     names = parameters.check_names(list(names))
     if not names:
@@ -218,7 +224,7 @@ def fit(
     n_workers = min(opt.workers or cores(), len(experiments)) if fm.thread_safe else 1
     pool = ThreadPoolExecutor(n_workers) if n_workers > 1 else None
     try:
-        return _fit(cell, experiments, names, opt, fm, start, stage, soc_span, theta_full, pool, ageing)
+        return _fit(cell, experiments, names, opt, fm, start, stage, soc_span, theta_full, pool, ageing, on_evaluation)
     finally:
         if pool is not None:
             pool.shutdown()
@@ -236,8 +242,10 @@ def _fit(
     theta_full: np.ndarray,
     pool: ThreadPoolExecutor | None,
     ageing: Ageing | None = None,
+    on_evaluation: Callable[[int, float], None] | None = None,
 ) -> FitResult:
     prob = Problem(fm, experiments, names, theta_full, soc_span, pool, ageing)
+    prob.on_evaluation = on_evaluation
     x0 = np.r_[
         np.clip(theta_full[prob.idx], 1e-6, 1 - 1e-6), np.full(prob.n_nuis, 0.5), np.clip(prob.age_x0(), 0.0, 1.0)
     ]
@@ -329,6 +337,7 @@ def _fit(
         tuple(e.name for e in experiments),
         stage,
         extra,
+        {e.name: float(1e3 * np.sqrt(np.mean(e.variance))) for e in experiments},
     )
 
 
@@ -387,37 +396,3 @@ class StageError(Exception):
         what = " ".join(str(cause).split())  # one line, whatever the cause's text
         what = what if isinstance(cause, InputError) else f"{type(cause).__name__}: {what}"
         super().__init__(f"stage {stage} of {total} ({len(self.names)} parameters) failed: {what}")
-
-
-def fit_groupwise(
-    cell: Cell,
-    stages: Sequence[Stage],
-    *,
-    options: Options | None = None,
-    forward: ForwardModel | None = None,
-    progress: object | None = None,
-) -> list[FitResult]:
-    """Cumulative group-wise fit: stage k fits groups 1..k on the experiments of stages 1..k.
-
-    ``progress``: optional callable ``(stage, FitResult)`` called after each stage, before the next one starts (to
-    keep each finished stage). An exception in stage k (its fit or its ``progress`` call) is raised as a
-    :class:`StageError` that carries the results of stages 1..k − 1; an interrupt (``KeyboardInterrupt``) passes
-    through unchanged.
-    """
-    fm = forward or ForwardModel(cell)
-    current = cell
-    names: list[str] = []
-    exps: list[Experiment] = []
-    results: list[FitResult] = []
-    for k, stg in enumerate(stages, start=1):
-        names += [n for n in stg.names if n not in names]
-        exps += list(stg.experiments)
-        try:
-            res = fit(cell, exps, names, options=options, forward=fm, start=current, stage=k)
-            if callable(progress):
-                progress(k, res)
-        except Exception as exc:
-            raise StageError(k, len(stages), names, results, exc) from exc
-        results.append(res)
-        current = res.cell
-    return results

@@ -5,7 +5,7 @@ A simulation that stops early at a voltage limit holds its last voltage for the 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -53,6 +53,8 @@ class Problem:
         self._cache: dict[bytes, tuple[np.ndarray, np.ndarray, list[np.ndarray]]] = {}  # the last two points
         self.n_sim = 0  # simulations of all experiments (every evaluation not found in the cache)
         self.pool = pool
+        #: called after every simulation of all experiments with (simulations so far, cost ½‖r‖²)
+        self.on_evaluation: Callable[[int, float], None] | None = None
         #: the lowest-cost point evaluated so far and its cost (kept apart from the cache: never re-simulated)
         self.best_x: np.ndarray | None = None
         self.best_cost = float("inf")
@@ -86,6 +88,8 @@ class Problem:
         cost = 0.5 * float(r @ r)
         if cost < self.best_cost:
             self.best_x, self.best_cost, self._best = x.copy(), cost, self._cache[key]
+        if self.on_evaluation is not None:
+            self.on_evaluation(self.n_sim, cost)
         return self._cache[key]
 
     def _one(self, i: int, th: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

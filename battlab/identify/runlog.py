@@ -14,18 +14,19 @@ start of a plan) are tagged ``noise_trial`` and are not fitted; they, and the tr
 1, carry a ``repeat_key`` shared by the trials of one profile, from which :func:`repeated_trials` gathers the
 voltages that eq. 36 takes the noise level from.
 
-Start state of a profile: the last step before it that sets the cell's state (:func:`state_steps`: a charge to
-V_max that tapered, or a rest of at least 30 min, as the design's plans have before every profile) plus the charge
-passed since (``Net Capacity / Ah``) over the cell's capacity; without such a step, the given ``soc0`` of the log's
-first sample plus the charge passed; else an error naming the profile. That start is a uniform cell, which a rest
-of 30 min after a partial discharge is not (the particles relax for hours). So where a full charge (a charge to
-V_max that tapered) precedes the profile by at most :data:`LEAD_IN_MAX_S`, with no gap in the log since, the
-experiment starts at the charge's end and replays the logged current through the preparation and the rest into the
-profile (its ``lead_in``, in :data:`LEAD_IN_DT` s bins, simulated but never scored): the CV phase leaves the cell
-nearly uniform, the simulation carries the gradients the preparation leaves. Its SOC there is the profile's start
-SOC above minus the charge passed since the full charge (the taper to C/20 stops a few mV short of equilibrium at
-V_max: measured on nca18650-true 0.993, not 1); a lead-in whose start SOC is not within :data:`LEAD_IN_SOC_TOL` of 1
-(the logged current does not explain the preparation) is not taken.
+Start state of a profile: the last step before it that sets the cell's state (:func:`state_steps`: a charge to V_max
+that tapered, or a rest of at least 30 min, as the design's plans have before every profile) plus the charge passed
+since (``Net Capacity / Ah``) over the cell's capacity; without such a step, the given ``soc0`` of the log's first
+sample plus the charge passed; else, when the log starts at rest, the SOC whose OCV is its first voltage (as for
+plain data: a measurement run right after its preparation); else an error naming the profile. That start is a
+uniform cell, which a rest of 30 min after a partial discharge is not (the particles relax for hours). So where a
+full charge (a charge to V_max that tapered) precedes the profile by at most :data:`LEAD_IN_MAX_S`, with no gap in
+the log since, the experiment starts at the charge's end and replays the logged current through the preparation and
+the rest into the profile (its ``lead_in``, in :data:`LEAD_IN_DT` s bins, simulated but never scored): the CV phase
+leaves the cell nearly uniform, the simulation carries the gradients the preparation leaves. Its SOC there is the
+profile's start SOC above minus the charge passed since the full charge (the taper to C/20 stops a few mV short of
+equilibrium at V_max: measured on nca18650-true 0.993, not 1); a lead-in whose start SOC is not within
+:data:`LEAD_IN_SOC_TOL` of 1 (the logged current does not explain the preparation) is not taken.
 
 When the run was interrupted and resumed, a step executed more than once is taken from its last (complete)
 execution.
@@ -161,6 +162,9 @@ def plan_experiments(
             start = soc_set + float(ah[r.start] - ah[row]) / cap
         elif soc0 is not None:
             start = soc0 + float(ah[r.start] - ah[0]) / cap
+        elif abs(float(data.current[0])) <= i_rest:  # a log that starts at rest: the SOC of its first voltage
+            lo, hi = float(cell.ocv(0.0)), float(cell.ocv(1.0))
+            start = cell.soc_from_voltage(float(np.clip(data.voltage[0], lo, hi))) + float(ah[r.start] - ah[0]) / cap
         else:
             raise InputError(
                 f"{where}: profile {r.profile_id} (plan step {r.step_index}) follows no full charge or rest of at "

@@ -13,7 +13,7 @@ import numpy as np
 
 from battlab.cell import Cell
 from battlab.identify.data_files import Ambient, ambient_of, check_ambient_keys, load_all
-from battlab.identify.workflow import json_default
+from battlab.jsonable import json_default
 
 
 @dataclass

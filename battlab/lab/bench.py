@@ -81,7 +81,7 @@ class Bench:
             try:
                 dev.close()
             except Exception as exc:  # closing must not hide the run's outcome
-                log.warning("closing %s: %s", getattr(dev, "name", dev), exc)
+                log.warning("closing %s: %s", dev.name, exc)
         if self.lab is not None:
             self.lab.stop()
 
@@ -143,17 +143,17 @@ def open_bench(settings: RunSettings, cell: Any, limits: InstrumentLimits, ambie
             cycler = open_cycler(cycler_url, dialect=dialect, retries=CYCLER_RETRIES)
         except (InstrumentError, OSError) as exc:
             raise InputError(f"cycler {settings.cycler_url}: {_detail(exc)}") from None
-        try:
-            clock: Clock = cycler.clock() if hasattr(cycler, "clock") else RealClock()
+        caps = cycler.capabilities
+        try:  # a cycler without a clock of its own is timed by the host's
+            clock: Clock = cycler.clock() if caps.clock else RealClock()
         except (InstrumentError, OSError) as exc:
             raise InputError(f"cycler {settings.cycler_url}: does not answer: {_detail(exc)}") from None
         if lab is not None and lab.clock.lockstep and cycler_url == lab.cycler_url:
             clock = lab.clock  # the runner's sleeps are what moves a lock-step tester's time
-        speed = float(getattr(clock, "speed", 1.0))
+        speed = float(clock.speed)
         link_timeout = min(REAL_LINK_TIMEOUT_S, max(MIN_LINK_TIMEOUT_S, LINK_TIMEOUT_VIRTUAL_S / speed))
-        adapter = getattr(cycler, "adapter", None)
-        if not _has_timeout(cycler_url) and adapter is not None and hasattr(adapter, "timeout_s"):
-            adapter.timeout_s = link_timeout  # the link timeout follows the instrument's clock
+        if not _has_timeout(cycler_url) and caps.link_timeout:
+            cycler.link_timeout_s = link_timeout  # the link timeout follows the instrument's clock
         # RTU framing paces frames by the baud rate (~40 ms for a 15-register reply at 9600 baud)
         floor = 0.25 if chamber_url.startswith("modbus-rtu") else 0.05
         try:

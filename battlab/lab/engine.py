@@ -140,6 +140,8 @@ class RunEngine:
         self._mismatches = 0
         self._has_T = True
         self._t_applied: float | None = None
+        #: samples carry the instrument's time stamps (else the run clock's time at reading)
+        self._stamped = cycler.capabilities.timestamps
 
     # -- state machine -----------------------------------------------------------------------------------
     def _to(self, new: RunState) -> None:
@@ -253,7 +255,7 @@ class RunEngine:
         self.calls.call("set current", self.cycler.set_current, current)
         self._i_cmd = current
         self.stats.current_sets += 1
-        self._t_applied = getattr(self.cycler, "last_applied_t_s", None)
+        self._t_applied = self.cycler.last_applied_t_s
         return self._t_applied
 
     def _run_entry(self, entry: PlanEntry) -> None:
@@ -315,7 +317,7 @@ class RunEngine:
         """Sleep until ``t_sched`` (run clock); on a slow clock watch the instruments meanwhile
         (:meth:`_heartbeat`), evenly spaced at most ``HEARTBEAT_S`` real seconds apart and from the sample on
         either side, so that no stretch without I/O is longer. Returns early on a stop request."""
-        step = HEARTBEAT_S * float(getattr(self.clock, "speed", 1.0))
+        step = HEARTBEAT_S * float(self.clock.speed)
         while True:
             remaining = t_sched - self.clock.now()
             intervals = math.ceil(remaining / step) if remaining > 0 else 0
@@ -339,7 +341,7 @@ class RunEngine:
 
     @property
     def chamber_name(self) -> str:
-        return str(getattr(self.chamber, "name", "chamber"))
+        return self.chamber.name
 
     def _announce_current(self) -> None:
         """Close the previous step's record (completed) and open the current one's (documents in order)."""
@@ -362,7 +364,7 @@ class RunEngine:
 
     def _measure(self, t_sched: float) -> Sample:
         m = self.calls.call("measure", self.cycler.measure)
-        t = m.t_s if m.t_s is not None else self.clock.now()
+        t = m.t_s if self._stamped and m.t_s is not None else self.clock.now()
         if self._t_applied is not None:
             d = t - self._t_applied
             self._t_applied = None

@@ -1,7 +1,8 @@
 """The run's PREFLIGHT phase: the bench made ready and checked before the first step.
 
 Identities (compared with the recorded ones on a resume), the instrument reset, the instrument's own protections
-programmed from the envelope (voltage and current limits, over-temperature trip, I/O watchdog), the cell's rest
+programmed from the envelope (voltage and current limits, over-temperature trip, I/O watchdog: each where the
+cycler's capabilities declare it, else noted and left to the runner's own checks), the cell's rest
 voltage within the envelope (and the plan's SOC and voltage window from it, when the plan starts from rest:
 :mod:`battlab.lab.window`), the chamber free of alarms, at its set point and stable; then the run's origin on
 the instrument clock (re-anchored when the instrument's clock restarted during a resume).
@@ -9,7 +10,6 @@ the instrument clock (re-anchored when the instrument's clock restarted during a
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -60,21 +60,27 @@ def prepare_bench(
                     "preflight",
                     f"{role} identity changed since the run started: {expected[role]!r} then, {idn!r} now",
                 )
+    caps = cycler.capabilities
     calls.call("cycler reset", cycler.initialize)
-    with contextlib.suppress(InputError):
+    if caps.clear_protection:
         calls.call("clear protection", cycler.clear_protection)
     errors = calls.call("cycler error queue", cycler.errors)
     if errors:
         notes.append(f"cycler error queue at start: {errors}")
     calls.call("current limits", cycler.set_current_limits, env.current_charge_max, env.current_discharge_max)
-    try:
+    if caps.low_voltage_cutoff:
         calls.call("voltage limits", cycler.set_voltage_limits, env.voltage_min, env.voltage_max)
-    except InputError:
+    else:
         calls.call("voltage limit", cycler.set_voltage_limits, None, env.voltage_max)
         notes.append("no instrument low-voltage cut-off: the runner enforces voltage_min")
-    if hasattr(cycler, "set_temperature_limit"):
+    if caps.temperature_limit:
         calls.optional("over-temperature trip", cycler.set_temperature_limit, env.temperature_max_K)
-    calls.optional("watchdog", cycler.set_watchdog, config.watchdog_s)
+    else:
+        calls.note_unavailable("over-temperature trip", f"{cycler.name} has none")
+    if caps.watchdog:
+        calls.optional("watchdog", cycler.set_watchdog, config.watchdog_s)
+    else:
+        calls.note_unavailable("watchdog", f"{cycler.name} has none")
     if options.sample_period_s > config.watchdog_s / 3:
         raise Abort(
             "preflight",
@@ -83,7 +89,8 @@ def prepare_bench(
         )
     m = calls.call("measure", cycler.measure)
     has_T = m.temperature_K is not None
-    first = Sample(m.t_s if m.t_s is not None else clock.now(), m.voltage_V, m.current_A, m.temperature_K)
+    t_first = m.t_s if caps.timestamps and m.t_s is not None else clock.now()
+    first = Sample(t_first, m.voltage_V, m.current_A, m.temperature_K)
     bad = check_sample(first, env)
     if bad is not None:
         raise Abort("preflight", f"cell at rest: {bad.message} (is the cell connected?)")

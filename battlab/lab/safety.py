@@ -23,7 +23,7 @@ from battlab.lab.limits import Envelope
 from battlab.lab.steps import Sample
 from drivers.clock import Clock
 from drivers.errors import InstrumentError
-from drivers.interfaces import Chamber, Cycler
+from drivers.interfaces import Chamber, Cycler, Instrument
 
 log = logging.getLogger("battlab.lab")
 
@@ -105,7 +105,7 @@ def safe_shutdown(
 
     An instrument in ``unreachable`` (its link just failed) is spared what would wait out its link's timeouts, so
     the run stops at once: the cycler gets output off sent once (``send_off``: a write without waiting for a
-    confirmation, where the driver has it), nothing more; the chamber is left as it is. When the cycler's
+    confirmation), nothing more; the chamber is left as it is. When the cycler's
     link died, the chamber gets its set point in one attempt, without the driver's retries.
     """
     out = Shutdown()
@@ -113,14 +113,10 @@ def safe_shutdown(
     cycler_dead = any(d is cycler for d in unreachable)
     if cycler_dead:
         out.output_off_sent_t_s = now()
-        send_off = getattr(cycler, "send_off", None)
-        try:
-            if callable(send_off):  # a write: on a dead link there is no confirmation to wait for
-                if not send_off():
-                    out.problems.append("output off could not be sent")
-            else:
-                out.output_off_confirmed = bool(cycler.safe_off())
-        except Exception as exc:  # a foreign driver might raise
+        try:  # a write: on a dead link there is no confirmation to wait for
+            if not cycler.send_off():
+                out.problems.append("output off could not be sent")
+        except Exception as exc:  # send_off must not raise, but a foreign driver might
             out.problems.append(f"output off: {exc}")
     else:
         out.output_off_sent_t_s = now()
@@ -166,17 +162,17 @@ def safe_shutdown(
 
 
 @contextlib.contextmanager
-def _one_attempt(device: object) -> Iterator[None]:
-    """The driver's link retries (its ``retries``, where it has one) off for the duration."""
-    retries = getattr(device, "retries", None)
-    if not isinstance(retries, int) or retries == 0:
+def _one_attempt(device: Instrument) -> Iterator[None]:
+    """The driver's link retries off for the duration."""
+    retries = device.retries
+    if retries == 0:
         yield
         return
-    device.retries = 0  # type: ignore[attr-defined]
+    device.retries = 0
     try:
         yield
     finally:
-        device.retries = retries  # type: ignore[attr-defined]
+        device.retries = retries
 
 
 __all__ = ["CURRENT_TOL_A", "CURRENT_TOL_REL", "Shutdown", "Violation", "check_sample", "safe_shutdown"]

@@ -30,7 +30,8 @@ import casadi as ca
 import numpy as np
 
 from battlab import parameters
-from battlab.cell import R_GAS, Cell, F
+from battlab.cell import Cell
+from battlab.constants import R_GAS, F
 from battlab.model.context import Context, PartialContext, a_s_i
 from battlab.model.extensions import ModelOptions
 from battlab.model.mesh import Mesh
@@ -227,6 +228,14 @@ class DFN:
             E = ext.activation(c, key, E)
         return E
 
+    def diffusivity_shape(self, c: Context, e: str, sto: ca.SX) -> ca.SX | float:
+        """The factor on D_s of electrode ``e`` at stoichiometry ``sto`` (A1): the cell's own shape, as the
+        extensions change it (1 for neither)."""
+        shape = _shape(self.cell, f"D_s_{e}_shape", sto)
+        for ext in self.options.extensions:
+            shape = ext.solid_diffusivity(c, e, shape, sto)
+        return shape
+
     def solid_diffusion(self, c: Context) -> None:
         """A1, A2 (and the surface value of A20): shells in ξ = r/R_s per x cell; sets f_s, surf, bulk, a_s."""
         cell, m, p, y, sl = self.cell, self.mesh, c.p, c.y, c.sl
@@ -248,9 +257,9 @@ class DFN:
             for k in range(nxe):
                 s = sto[:, k]
                 s_face = 0.5 * (s[1:] + s[:-1])
-                flux = (self.xi_f[1:-1] ** 2) * _shape(cell, f"D_s_{e}_shape", s_face) * (s[1:] - s[:-1]) / dxi
+                flux = (self.xi_f[1:-1] ** 2) * self.diffusivity_shape(c, e, s_face) * (s[1:] - s[:-1]) / dxi
                 flux_out = -R * ii[k] / (F * cmax * D)  # ξ² ∂ξθ at ξ = 1, from −D c_max/R ∂ξθ = i/F
-                shape_surf = _shape(cell, f"D_s_{e}_shape", s[-1])
+                shape_surf = self.diffusivity_shape(c, e, s[-1])
                 flux_full = ca.vertcat(0.0, flux, flux_out)
                 dsdt = D / R**2 * (flux_full[1:] - flux_full[:-1]) / self.vol
                 rows.append(dsdt)

@@ -8,21 +8,28 @@ from typing import TypeVar
 from drivers.chambers import espec_codec as ec
 from drivers.chambers.base import wait_stable
 from drivers.clock import Clock
+from drivers.defaults import TextAdapterLink
 from drivers.errors import InstrumentFault
+from drivers.interfaces import ChamberCapabilities
+from drivers.registry import CHAMBER, UrlScheme, register
 from drivers.transport import LineAdapter, TextAdapter, with_retries
 from drivers.urls import InstrumentURL, parse_url
 from protocols.errors import InputError
 
 T = TypeVar("T")
 
+#: the P-300's text protocol over TCP (port 10001 by default) or a serial port
+ESPEC = UrlScheme("espec", options=frozenset({"baud", "timeout"}), default_port=10001, device=True)
 
-class EspecP300:
+
+class EspecP300(TextAdapterLink):
     """P-300 temperature loop; ``adapter`` speaks CR LF lines."""
 
     def __init__(self, adapter: TextAdapter, *, name: str | None = None, retries: int = 2) -> None:
         self.adapter = adapter
         self.name = name or f"chamber[{adapter.name}]"
         self.retries = retries
+        self.capabilities = ChamberCapabilities(link_timeout=adapter.timeout_s is not None)
         self._set_point_C: float | None = None
 
     @classmethod
@@ -103,3 +110,6 @@ class EspecP300:
 
     def close(self) -> None:
         self.adapter.close()
+
+
+register(CHAMBER, EspecP300, ESPEC)

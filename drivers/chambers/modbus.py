@@ -33,6 +33,8 @@ class RegisterAdapter(Protocol):
     """What a Modbus device driver needs: holding registers by address."""
 
     name: str
+    #: extra attempts for a transaction that failed on the link (settable)
+    retries: int
 
     def read(self, address: int, count: int) -> list[int]: ...
 

@@ -2,17 +2,34 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 from drivers.chambers import watlow_codec as wc
 from drivers.chambers.base import wait_stable
-from drivers.chambers.modbus import PymodbusRegisters, RegisterAdapter
 from drivers.clock import Clock
+from drivers.defaults import ChamberDefaults
 from drivers.errors import InstrumentFault, ReplyError
+from drivers.registry import CHAMBER, UrlScheme, register
 from drivers.urls import InstrumentURL, parse_url
 from protocols.errors import InputError
 
+if TYPE_CHECKING:
+    from drivers.chambers.modbus import RegisterAdapter
 
-class WatlowF4T:
-    """F4T temperature loop. Temperatures over Modbus follow the display units (register 1328), read once."""
+#: Modbus TCP, Modbus RTU on a serial port, and RTU framing over a TCP socket (a serial-to-Ethernet gateway)
+MODBUS_TCP = UrlScheme("modbus-tcp", options=frozenset({"unit", "timeout"}), default_port=502)
+MODBUS_RTU = UrlScheme(
+    "modbus-rtu", options=frozenset({"unit", "baud", "parity", "stopbits", "timeout"}), network=False, device=True
+)
+MODBUS_RTU_SOCKET = UrlScheme("modbus-rtu+socket", options=frozenset({"unit", "timeout"}))
+
+
+class WatlowF4T(ChamberDefaults):
+    """F4T temperature loop. Temperatures over Modbus follow the display units (register 1328), read once.
+
+    The link's timeout is fixed when it is opened, and the register adapter resynchronises after every failed
+    transaction itself (:class:`~drivers.defaults.ChamberDefaults`: no ``link_timeout`` capability, ``resync`` a
+    no-op)."""
 
     def __init__(
         self,
@@ -45,18 +62,19 @@ class WatlowF4T:
             raise InputError(
                 f"chamber URL {parsed.raw!r}: a Watlow F4T needs modbus-tcp://, modbus-rtu:// or modbus-rtu+socket://"
             )
+        from drivers.chambers.modbus import PymodbusRegisters  # pymodbus is imported when a Modbus link is opened
+
         regs = PymodbusRegisters.from_url(parsed, name=name or parsed.raw, timeout_s=timeout_s, retries=retries)
         return cls(regs, loop=loop, name=name or f"chamber[{parsed.raw}]")
 
     @property
     def retries(self) -> int:
-        """Extra attempts for an exchange that failed on the link (the register adapter's; 0 if it has none)."""
-        return int(getattr(self.registers, "retries", 0))
+        """Extra attempts for an exchange that failed on the link (the register adapter's)."""
+        return self.registers.retries
 
     @retries.setter
     def retries(self, n: int) -> None:
-        if hasattr(self.registers, "retries"):
-            self.registers.retries = n
+        self.registers.retries = n
 
     # -- helpers ------------------------------------------------------------------------------------------
     def _reg(self, base: int) -> int:
@@ -136,5 +154,15 @@ class WatlowF4T:
         self.registers.close()
 
 
-# Re-exported for tests that build an F4T on another register source.
-__all__ = ["PymodbusRegisters", "WatlowF4T"]
+register(CHAMBER, WatlowF4T, MODBUS_TCP, MODBUS_RTU, MODBUS_RTU_SOCKET)
+
+
+def __getattr__(name: str) -> Any:  # PymodbusRegisters stays importable from here without importing pymodbus early
+    if name == "PymodbusRegisters":
+        from drivers.chambers.modbus import PymodbusRegisters
+
+        return PymodbusRegisters
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = ["MODBUS_RTU", "MODBUS_RTU_SOCKET", "MODBUS_TCP", "WatlowF4T"]

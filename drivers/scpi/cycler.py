@@ -13,8 +13,10 @@ import logging
 from typing import Any
 
 from drivers.clock import Clock, RealClock, TrackedClock
-from drivers.errors import CommunicationError, InstrumentError, InstrumentFault
-from drivers.interfaces import Measurement, ProtectionState
+from drivers.defaults import TextAdapterLink
+from drivers.errors import CommunicationError, InstrumentError, InstrumentFault, NotSupported
+from drivers.interfaces import CyclerCapabilities, Measurement, ProtectionState
+from drivers.registry import CYCLER, OpenOptions, UrlScheme, register
 from drivers.scpi import codec
 from drivers.scpi.dialects import BATTLAB_VIRTUAL, ScpiDialect, ScpiProperty
 from drivers.transport import LineAdapter, TextAdapter, with_retries
@@ -25,12 +27,31 @@ log = logging.getLogger("drivers")
 
 _MAX_ERRORS = 32
 
+#: SCPI over a raw TCP socket, and over a serial port (the bare device path)
+SOCKET = UrlScheme("socket")
+SERIAL = UrlScheme("serial", options=frozenset({"baud", "timeout"}), network=False, device=True)
 
-class ScpiCycler:
+
+def dialect_capabilities(dialect: ScpiDialect, *, link_timeout: bool = False) -> CyclerCapabilities:
+    """What a cycler speaking ``dialect`` can do, read from its property table."""
+    clock = dialect.has("time") and dialect.has("speed")
+    return CyclerCapabilities(
+        clock=clock,
+        timestamps=clock and "time" in dialect.measure,
+        low_voltage_cutoff=dialect.has("voltage_limit_low"),
+        temperature_limit=dialect.has("temperature_protection"),
+        watchdog=dialect.has("watchdog_enabled") and dialect.has("watchdog_delay"),
+        clear_protection=dialect.protection_clear is not None,
+        link_timeout=link_timeout,
+    )
+
+
+class ScpiCycler(TextAdapterLink):
     """A SCPI cycler channel; ``adapter`` is its connection, ``dialect`` its command table.
 
     ``retries``: extra attempts for an exchange that failed on the link (timeout, garbled reply,
-    disconnect); the adapter is resynchronised (``recover``) between attempts.
+    disconnect); the adapter is resynchronised (``recover``) between attempts. ``capabilities`` follow from the
+    dialect's table (:func:`dialect_capabilities`).
     """
 
     def __init__(
@@ -47,6 +68,8 @@ class ScpiCycler:
         self.name = name or f"cycler[{adapter.name}]"
         self.retries = retries
         self.backoff_s = backoff_s
+        self.capabilities = dialect_capabilities(dialect, link_timeout=adapter.timeout_s is not None)
+        self.last_applied_t_s: float | None = None
         i_lo, i_hi = dialect.prop("current").values
         self._charge_max_A, self._discharge_max_A = self._battlab_current_range(i_lo, i_hi)
         if not dialect.verified:
@@ -243,10 +266,11 @@ class ScpiCycler:
     def set_voltage_limits(self, low_V: float | None, high_V: float) -> None:
         if low_V is not None and not low_V < high_V:
             raise InputError(f"{self.name}: voltage limits need low < high, got {low_V} and {high_V} V")
-        if low_V is not None and not self.dialect.has("voltage_limit_low"):
-            raise InputError(
-                f"{self.name}: dialect {self.dialect.name} has no low-voltage cutoff; "
-                "pass low_V=None and let the runner enforce it"
+        if low_V is not None and not self.capabilities.low_voltage_cutoff:
+            raise NotSupported(
+                self.name,
+                "a low-voltage cut-off",
+                f"dialect {self.dialect.name} has no low-voltage cutoff; pass low_V=None and let the runner enforce it",
             )
         self.set("voltage_limit", high_V)
         if low_V is not None:
@@ -271,6 +295,10 @@ class ScpiCycler:
 
     def set_temperature_limit(self, T_max_K: float) -> None:
         """Instrument-side over-temperature trip (only dialects with a temperature probe)."""
+        if not self.capabilities.temperature_limit:
+            raise NotSupported(
+                self.name, "an over-temperature trip", f"dialect {self.dialect.name} has no temperature_protection"
+            )
         self.set("temperature_protection", T_max_K)
 
     def protection(self) -> ProtectionState:
@@ -278,11 +306,13 @@ class ScpiCycler:
         return ProtectionState(tripped=self.dialect.tripped(raw), causes=self.dialect.status_names(raw), raw=raw)
 
     def clear_protection(self) -> None:
+        if self.dialect.protection_clear is None:
+            raise NotSupported(
+                self.name, "clearing protection remotely", f"dialect {self.dialect.name} has no protection clear"
+            )
         # Safety first: the output is programmed off before the latch is cleared, so clearing never
         # re-enables it (Keysight restores the programmed state on clear).
         self.set("output", False)
-        if self.dialect.protection_clear is None:
-            raise InputError(f"{self.name}: dialect {self.dialect.name} cannot clear protection remotely")
         self.send(codec.command(self.dialect.protection_clear), what="clear protection")
 
     def errors(self) -> list[tuple[int, str]]:
@@ -296,8 +326,8 @@ class ScpiCycler:
         raise InstrumentFault(self.name, f"error queue did not empty after {_MAX_ERRORS} reads: {out}")
 
     def set_watchdog(self, timeout_s: float | None) -> None:
-        if not self.dialect.has("watchdog_enabled"):
-            raise InputError(f"{self.name}: dialect {self.dialect.name} has no instrument watchdog")
+        if not self.capabilities.watchdog:
+            raise NotSupported(self.name, "an instrument watchdog", f"dialect {self.dialect.name} has none")
         if timeout_s is None:
             self.set("watchdog_enabled", False)
             return
@@ -331,16 +361,21 @@ class ScpiCycler:
 
     # -- time -------------------------------------------------------------------------------------------
     _clock: TrackedClock | None = None
-    #: the instrument's time / s at which the last set_current took effect (dialects with a clock), else None
-    last_applied_t_s: float | None = None
 
     def clock(self) -> Clock:
         """The instrument's clock if it has one (virtual tester), else wall time."""
-        if self.dialect.has("time") and self.dialect.has("speed"):
+        if self.capabilities.clock:
             if self._clock is None:
                 self._clock = TrackedClock(lambda: float(self.get("time")), float(self.get("speed")))
             return self._clock
         return RealClock()
 
 
-__all__ = ["ScpiCycler", "CommunicationError"]
+def _open(url: InstrumentURL, options: OpenOptions) -> ScpiCycler:
+    dialect = options.dialect or BATTLAB_VIRTUAL
+    return ScpiCycler.open(url, dialect, timeout_s=options.timeout_s, retries=options.retries)
+
+
+register(CYCLER, ScpiCycler, SOCKET, SERIAL, opener=_open)
+
+__all__ = ["SERIAL", "SOCKET", "ScpiCycler", "CommunicationError", "dialect_capabilities"]

@@ -66,7 +66,9 @@ def test_design_takes_given_groups_and_a_noise_model(store: Path, tmp_path: Path
 def test_fit_and_validate_return_what_they_write(tmp_path: Path, virtual_csv) -> None:
     a, b = virtual_csv(tmp_path, 19, 1), virtual_csv(tmp_path, 37, 2)
     stages = []
-    rep = workflow.fit([a], "nca18650", params="R_s_n,R_s_p", on_stage=lambda k, r: stages.append(k))
+    rep = workflow.fit(
+        workflow.FitOptions([a], "nca18650", params="R_s_n,R_s_p"), [workflow.on_stage(lambda k, r: stages.append(k))]
+    )
     assert stages == [1] and rep.summary["converged"] is True
     assert rep.cell["R_s_n"] == rep.summary["parameters"]["R_s_n"]["value"]
     bpx, summary = rep.write(tmp_path / "cell.bpx.json")

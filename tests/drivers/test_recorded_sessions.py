@@ -14,7 +14,7 @@ import pytest
 
 from drivers.chambers.espec import EspecP300
 from drivers.chambers.watlow_f4t import WatlowF4T
-from drivers.errors import CommunicationError, InstrumentFault, ReplyError
+from drivers.errors import CommunicationError, InstrumentFault, NotSupported, ReplyError
 from drivers.scpi.cycler import ScpiCycler
 from drivers.scpi.dialects import BATTLAB_VIRTUAL, KEYSIGHT_N7900
 from drivers.testing import ReplayAdapter, ReplayRegisters, load_recording, parse_recording
@@ -147,6 +147,6 @@ def test_out_of_range_setting_is_a_user_error_before_any_io() -> None:
         cyc.set_current(30.0)
     with pytest.raises(InputError, match=r"watchdog_delay .*outside the instrument's range \[1, 3600\]"):
         cyc.set_watchdog(7200)
-    with pytest.raises(InputError, match="no low-voltage cutoff"):
+    with pytest.raises(NotSupported, match="no low-voltage cutoff"):
         cyc.set_voltage_limits(2.5, 4.2)
     replay.assert_all_used()

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,7 @@ def test_a_failed_stage_is_one_line_and_a_rerun_resumes_after_the_finished_ones(
     cfg.write_text('[stages]\nskip = ["ocv"]\n')
     monkeypatch.chdir(tmp_path)  # a relative campaign directory, as the README's `-o campaign`
     out = Path("camp")
-    real = pipeline._FUNCS["library"]
+    real = pipeline.UNITS
 
     def broken(camp: Any) -> Any:
         def run(ctx: StageContext) -> StageOutput:
@@ -40,7 +41,7 @@ def test_a_failed_stage_is_one_line_and_a_rerun_resumes_after_the_finished_ones(
 
         return run
 
-    monkeypatch.setitem(pipeline._FUNCS, "library", broken)
+    monkeypatch.setattr(pipeline, "UNITS", tuple(replace(u, run=broken) if u.name == "library" else u for u in real))
     r = _invoke("--config", str(cfg), "-o", str(out))
     assert r.exit_code == 1
     assert "campaign stage library failed: disk full (injected)" in r.output
@@ -50,7 +51,7 @@ def test_a_failed_stage_is_one_line_and_a_rerun_resumes_after_the_finished_ones(
     log = out / "runs" / "capacity_before.h5"
     mtime = log.stat().st_mtime_ns
 
-    monkeypatch.setitem(pipeline._FUNCS, "library", real)
+    monkeypatch.setattr(pipeline, "UNITS", real)
     r = _invoke("--config", str(cfg), "-o", str(out))
     assert r.exit_code == 0, r.output
     summary = json.loads((out / "summary.json").read_text())

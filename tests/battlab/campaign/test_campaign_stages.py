@@ -106,15 +106,15 @@ def test_stages_out_of_order_are_an_error(tmp_path: Path) -> None:
 
 def test_progress_events_in_order(tmp_path: Path) -> None:
     events: list[tuple[str, str]] = []
-    run_stages(tmp_path / "camp", Counter().pipeline(), IDENTITY, [lambda e: events.append((e.kind, e.stage))])
-    assert events == [
+    run_stages(tmp_path / "camp", Counter().pipeline(), IDENTITY, [lambda e: events.append((e.kind, e.task))])
+    assert events == [  # the one progress protocol's kinds (battlab.progress)
         ("start", "a"),
-        ("progress", "a"),
-        ("done", "a"),
+        ("advance", "a"),
+        ("stop", "a"),
         ("start", "b"),
-        ("progress", "b"),
-        ("done", "b"),
+        ("advance", "b"),
+        ("stop", "b"),
         ("start", "c"),
-        ("progress", "c"),
-        ("done", "c"),
+        ("advance", "c"),
+        ("stop", "c"),
     ]

@@ -22,6 +22,7 @@ CATALOG = {
     "capacity_fade",
     "equilibrium",
     "electrolyte",
+    "solid_diffusion",
 }
 
 

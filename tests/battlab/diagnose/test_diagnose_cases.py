@@ -25,9 +25,11 @@ NULL_SEEDS = (21, 22)
 def test_a_hidden_effect_is_named_or_honestly_undecided_never_mistaken(
     tmp_path, hidden_effect_csv, cause: str, values: dict[str, float], seed: int
 ) -> None:
-    from battlab.diagnose.workflow import diagnose
+    from battlab.diagnose.workflow import DiagnoseOptions, diagnose
 
-    rep = diagnose([hidden_effect_csv(tmp_path / f"{cause}.bdf.csv", cause, seed=seed, **values)], "nca18650")
+    rep = diagnose(
+        DiagnoseOptions([hidden_effect_csv(tmp_path / f"{cause}.bdf.csv", cause, seed=seed, **values)], "nca18650")
+    )
     s = rep.summary
     undecided = {c["cause"] for c in s["cannot_tell"]}
     assert s["cause"] == cause or (s["cause"] is None and cause in undecided), rep.text()
@@ -39,7 +41,7 @@ def test_a_hidden_effect_is_named_or_honestly_undecided_never_mistaken(
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", NULL_SEEDS)
 def test_noise_only_names_nothing(tmp_path, hidden_effect_csv, seed: int) -> None:
-    from battlab.diagnose.workflow import diagnose
+    from battlab.diagnose.workflow import DiagnoseOptions, diagnose
 
-    rep = diagnose([hidden_effect_csv(tmp_path / f"null{seed}.bdf.csv", seed=seed)], "nca18650")
+    rep = diagnose(DiagnoseOptions([hidden_effect_csv(tmp_path / f"null{seed}.bdf.csv", seed=seed)], "nca18650"))
     assert rep.summary["cause"] is None and rep.summary["cannot_tell"] == [], rep.text()

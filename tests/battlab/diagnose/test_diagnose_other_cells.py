@@ -74,7 +74,7 @@ def test_a_bpx_cell_log_at_its_own_noise_gives_s2_near_one(nmc_bpx: Path, tmp_pa
     """battlab's own simulation of the BPX cell plus 0.2 mV white noise, diagnosed with the same cell: s² ≈ 1 and no
     cause (the paper's noise regression put this 12.5 Ah cell's noise at over 1 V: s² was 1e-7)."""
     import battlab
-    from battlab.diagnose.workflow import diagnose
+    from battlab.diagnose.workflow import DiagnoseOptions, diagnose
     from battlab.io.bdf import write_bdf_csv
     from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE, LoggedData
     from protocols import Profile
@@ -88,6 +88,6 @@ def test_a_bpx_cell_log_at_its_own_noise_gives_s2_near_one(nmc_bpx: Path, tmp_pa
     y = np.round((v + 2e-4 * np.random.default_rng(3).standard_normal(v.size)) / 1e-4) * 1e-4
     cols = {TIME: t, VOLTAGE: y, CURRENT: prof.current, AMBIENT: np.full(t.size, 25.0)}
     path = write_bdf_csv(LoggedData("own", cols, {"soc0": 0.6}), tmp_path / "own.bdf.csv")
-    s = diagnose([path], nmc_bpx).summary
+    s = diagnose(DiagnoseOptions([path], nmc_bpx)).summary
     assert 0.7 < s["residual"]["s2"] < 1.5, s["residual"]
     assert s["cause"] is None, s["verdict"]

@@ -11,9 +11,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from battlab.diagnose.confirm import S2_REFIT
 from battlab.diagnose.report import DiagnosisReport, headline
 from battlab.diagnose.residuals import analyse
-from battlab.diagnose.workflow import S2_REFIT
 from battlab.report.browser import PageCheck
 
 THERMAL = {

@@ -8,6 +8,7 @@ import pytest
 import battlab
 from battlab import parameters as P
 from battlab.identify import fit as F
+from battlab.identify.cumulative import FitSettings, fit_cumulative
 from battlab.identify.experiments import Experiment
 from battlab.identify.forward import ForwardModel, Output
 from battlab.identify.gauss_newton import bounded_gauss_newton
@@ -208,7 +209,7 @@ def test_groupwise_fit_is_cumulative(setup) -> None:
     cell, truth, fm, profs, clean = setup
     exps = [synthesize(fm, truth, p, p.soc0, seed=3 + k, clean=clean[p.id]) for k, p in enumerate(profs)]
     stages = [F.Stage(("R_s_n", "R_s_p"), (exps[0],)), F.Stage(("D_s_p",), (exps[1],))]
-    res = F.fit_groupwise(cell, stages, forward=fm)
+    res = fit_cumulative(cell, stages, forward=fm)
     assert res[0].names == ("R_s_n", "R_s_p") and res[0].experiments == (exps[0].name,)
     assert res[1].names == NAMES and res[1].experiments == (exps[0].name, exps[1].name)
     assert all(res[1].statistics[n].covers(P.SPECS[n].truth) for n in NAMES)
@@ -259,7 +260,7 @@ def test_full_problem_groupwise_recovery_from_nominal() -> None:
         F.Stage(g, tuple(synthesize(fm, truth, lib[i], lib[i].soc0, seed=i) for i in ids))
         for g, ids in zip(F.TABLE9_GROUPS, chosen, strict=True)
     ]
-    last = F.fit_groupwise(nominal, stages, forward=fm, options=F.Options(max_nfev=15))[-1]
+    last = fit_cumulative(nominal, stages, FitSettings(max_evaluations=15), forward=fm)[-1]
     interior = [
         e
         for e in last.statistics.estimates

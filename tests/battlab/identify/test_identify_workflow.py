@@ -30,7 +30,10 @@ def test_a_crash_in_stage_2_keeps_stage_1_on_disk(tmp_path: Path, virtual_csv, m
     out = tmp_path / "out" / "cell.bpx.json"
     seen: list[int] = []
     with pytest.raises(workflow.StageFailed) as info:
-        workflow.fit([data], "nca18650", params="table9", max_iter=4, output=out, on_stage=lambda k, r: seen.append(k))
+        workflow.fit(
+            workflow.FitOptions([data], "nca18650", params="table9", max_iter=4, output=out),
+            [workflow.on_stage(lambda k, r: seen.append(k))],
+        )
     exc = info.value
     assert (exc.stage, exc.total, exc.kept, seen) == (2, 4, 1, [1])
     assert isinstance(exc.cause, OverflowError) and exc.written == (out, out.with_name("cell.summary.json"))
@@ -61,7 +64,9 @@ def test_each_stage_is_written_as_it_finishes_and_the_last_is_complete(tmp_path:
         status.append((s["status"], len(s["stages"])))
         assert battlab.Cell.from_bpx(out)["R_s_n"] == pytest.approx(r.cell["R_s_n"], rel=1e-12)
 
-    rep = workflow.fit([data], "nca18650", params="table9", max_iter=2, output=out, on_stage=on_stage)
+    rep = workflow.fit(
+        workflow.FitOptions([data], "nca18650", params="table9", max_iter=2, output=out), [workflow.on_stage(on_stage)]
+    )
     assert status == [
         ("partial: stage 1 of 4", 1),
         ("partial: stages 1–2 of 4", 2),
@@ -88,7 +93,10 @@ def test_a_crash_in_stage_1_keeps_the_equilibrium_fit_on_disk(
         seen.append((s["status"], s["parameters"]["eps_s_n"]["value"]))
 
     with pytest.raises(workflow.StageFailed) as info:
-        workflow.fit([ocv_csv, data], "nca18650", params="table9", output=out, on_equilibrium=on_equilibrium)
+        workflow.fit(
+            workflow.FitOptions([ocv_csv, data], "nca18650", params="table9", output=out),
+            [workflow.on_equilibrium(on_equilibrium)],
+        )
     exc = info.value
     eq = exc.report.equilibrium
     assert eq is not None and exc.report.equilibrium_data == "c20"
@@ -136,7 +144,7 @@ def test_an_electrodes_four_orbit_parameters_are_fitted_as_its_invariants(tmp_pa
 
     a = virtual_csv(tmp_path, 19, 3)
     names = "R_s_n,D_s_n,k_n,R_f_n"
-    rep = workflow.fit([a], "nca18650", params=names, max_iter=3, output=tmp_path / "fit.bpx.json")
+    rep = workflow.fit(workflow.FitOptions([a], "nca18650", params=names, max_iter=3, output=tmp_path / "fit.bpx.json"))
     st = rep.last.statistics
     assert rep.last.names == ("D_s_n", "k_n", "R_f_n") and st.valid and not st.null_space
     assert rep.cell["R_s_n"] == Cell.load("nca18650")["R_s_n"]
@@ -173,6 +181,6 @@ def test_full_charge_ocv_start_without_an_ocv_test_is_one_clear_error(tmp_path: 
 
     data = virtual_csv(tmp_path, 19, 1)
     with pytest.raises(InputError, match="--full-charge ocv-start needs an OCV test"):
-        workflow.fit([data], "nca18650", params="R_s_n", full_charge="ocv-start", max_iter=1)
+        workflow.fit(workflow.FitOptions([data], "nca18650", params="R_s_n", full_charge="ocv-start", max_iter=1))
     with pytest.raises(InputError, match="full charge 'soc1'"):
-        workflow.fit([data], "nca18650", params="R_s_n", full_charge="soc1", max_iter=1)
+        workflow.fit(workflow.FitOptions([data], "nca18650", params="R_s_n", full_charge="soc1", max_iter=1))

@@ -38,6 +38,7 @@ from battlab.lab.steps import (
 )
 from drivers.chambers.watlow_f4t import WatlowF4T
 from drivers.clock import RealClock
+from drivers.interfaces import Measurement
 from drivers.scpi.cycler import ScpiCycler
 from protocols import Profile
 from protocols.errors import InputError
@@ -369,29 +370,27 @@ def test_a_retry_to_a_hung_instrument_gets_what_is_left_of_the_budget() -> None:
     floor), not another 0.2 s; then the call aborts and the driver's timeout is restored. The timeouts each attempt
     was given are recorded, no wall time is asserted."""
 
-    class Recorded:
-        """The cycler's ``measure`` with the link timeout of each attempt recorded; ``adapter`` is the cycler's, so
-        the runner cuts and restores it as it would the cycler's."""
+    class RecordingCycler(ScpiCycler):
+        """The SCPI cycler, recording the link timeout each ``measure`` is given."""
 
-        def __init__(self, cycler: ScpiCycler) -> None:
-            self.cycler, self.adapter, self.timeouts = cycler, cycler.adapter, []
+        timeouts: list[float | None]
 
-        def measure(self) -> object:
-            self.timeouts.append(self.adapter.timeout_s)
-            return self.cycler.measure()
+        def measure(self) -> Measurement:
+            self.timeouts.append(self.link_timeout_s)
+            return super().measure()
 
     server = SilentServer()
     try:
-        cycler = ScpiCycler.open(f"socket://127.0.0.1:{server.port}", timeout_s=0.2, retries=0)
-        rec = Recorded(cycler)
+        cycler = RecordingCycler.open(f"socket://127.0.0.1:{server.port}", timeout_s=0.2, retries=0)
+        cycler.timeouts = []
         calls = InstrumentCalls(retries=3, backoff_s=0.5, clock=RealClock(), stats=RunStats(), budget_s=0.35)
         with pytest.raises(Abort, match="measure failed after 2 attempts") as info:
-            calls.call("measure", rec.measure)
+            calls.call("measure", cycler.measure)
         cycler.close()
-        assert info.value.kind == "communication" and info.value.device is rec
-        first, retry = rec.timeouts
-        assert first == 0.2 and MIN_RETRY_TIMEOUT_S <= retry <= 0.35 - 0.2
-        assert cycler.adapter.timeout_s == 0.2  # restored
+        assert info.value.kind == "communication" and info.value.device is cycler
+        first, retry = cycler.timeouts
+        assert first == 0.2 and retry is not None and MIN_RETRY_TIMEOUT_S <= retry <= 0.35 - 0.2
+        assert cycler.link_timeout_s == 0.2  # restored
         assert len(server.connections) == 2  # the retry reconnected first
     finally:
         server.close()

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import battlab
-from battlab import Cell, parameters
+from battlab import Cell, causes, parameters
 from battlab.model import solver
 from battlab.model.extensions import CATALOG, ModelOptions
 from battlab.model.mesh import Mesh
@@ -23,17 +23,8 @@ FD_STEP = 1e-5  # in θ̄
 FD_RTOL = 1e-3  # relative 2-norm over time
 AMBIENT = 283.15  # K: away from T_ref, so that every temperature dependence shows
 
-#: per extension: values that switch it on (for the FD check away from "off")
-ON = {
-    "contact_resistance": {"R_c": 0.004, "dRc_dT": 5e-5},
-    "current_sensor": {"offset": 0.02, "gain": 0.01},
-    "thermal": {"dE_D_s_n": 5000.0, "dE_k_p": -8000.0, "dE_kappa": 3000.0, "h2a_scale": 1.5, "dUdT_offset": 1e-4},
-    "double_layer": {"C_dl_n": 0.2, "C_dl_p": 0.3},
-    "capacity_fade": {"I_side": 0.005, "alpha_side": 0.5, "lam_n": 0.008, "lam_p": 0.004},
-    "equilibrium": {"d_sto_n": -0.005, "d_sto_p": 0.005, "dU": 0.003},
-    "electrolyte": {"De_slope": 0.3, "kappa_slope": -0.4, "dlnf_slope": 0.5},
-    "hysteresis": {"M_n": 0.01, "gamma_n": 30.0, "M_p": 0.005, "gamma_p": 80.0},
-}
+#: per extension: values that switch it on (for the FD check away from "off"), as each cause declares them
+ON = {c.key: dict(c.example) for c in causes.extended()}
 
 
 def pulses(duration: float = 400.0) -> Profile:
@@ -73,7 +64,7 @@ def fd_errors(
 
 #: the voltage is not differentiable at C_dl = 0: for any C_dl > 0 the right limit at a current step holds the
 #: charge-transfer overpotential (the capacitor), at 0 it jumps; the score test needs a small positive reference
-SINGULAR_OFF = {"double_layer"}
+SINGULAR_OFF = {c.key for c in causes.extended() if not c.differentiable_at_off}
 
 
 @pytest.mark.parametrize(

@@ -3,17 +3,14 @@ and loads every image (and notices a missing one)."""
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 
 from battlab.report import Figure, KeyValues, Paragraph, Section, Table, render, write
 from battlab.report.browser import PageCheck, check_page
-from battlab.report.campaign import _health
 
 
 def figure(path: Path) -> Path:
@@ -77,36 +74,3 @@ def test_a_page_in_a_relative_directory_finds_its_figures_from_another_directory
     assert text.count('src="figs/a.png"') == 2 and 'src="out/' not in text
     check = open_elsewhere(page)
     assert check.images == 2 and check.images_loaded == 2 and check.ok
-
-
-def _health_dir(tmp_path: Path, runs: dict[str, list[dict[str, Any]]]) -> Path:
-    (tmp_path / "health").mkdir(parents=True)
-    for stage, rows in runs.items():
-        full = [
-            {"log": f"{stage}{k}.h5", "status": "completed", "reason": None, "samples": 100, "late_samples": 0}
-            | {"gaps": 0, "max_gap_s": 1.0, "safety_events": []}
-            | r
-            for k, r in enumerate(rows)
-        ]
-        (tmp_path / "health" / f"{stage}.json").write_text(json.dumps(full))
-    return tmp_path
-
-
-def test_the_run_log_headline_is_green_only_when_every_run_completed_on_time(tmp_path: Path) -> None:
-    aborted = {"status": "aborted", "reason": "cell model: step did not converge at t = 237583.0 s"}
-    cases = {
-        "clean": ({"ocv": [{}], "noise": [{}, {}]}, "good"),
-        "aborted": ({"conventional": [{}, aborted], "validation": [aborted, {}]}, "warn"),
-        "late": ({"ocv": [{"late_samples": 3}], "noise": [aborted]}, "bad"),
-    }
-    for name, (runs, tone) in cases.items():
-        section = _health(_health_dir(tmp_path / name, runs))
-        head = section.blocks[0]
-        assert isinstance(head, Paragraph) and head.tone == tone, (name, head)
-    section = _health(tmp_path / "aborted")
-    head = section.blocks[0].text  # type: ignore[union-attr]
-    assert "2 of 4 runs did not complete" in head
-    listed = [b.text for b in section.blocks[1:3]]  # type: ignore[union-attr]
-    assert listed[0].startswith("conventional/conventional1.h5 aborted: cell model: step did not converge")
-    assert listed[1].startswith("validation/validation0.h5 aborted")
-    assert 'class="warn"' in render("t", [section]) and 'class="good"' not in render("t", [section])

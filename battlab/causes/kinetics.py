@@ -1,0 +1,21 @@
+"""Reaction kinetics and film: the charge-transfer reaction at the particle surface (Butler–Volmer, A17–A20: the
+rate constants k±) and the resistance of the surface film in series with it (R_f±). The base model expresses them
+fully; their fix is a refit. (A film resistance and a series contact resistance differ only in their temperature
+dependence.)"""
+
+from __future__ import annotations
+
+from battlab.causes.cause import Cause, Evidence
+
+CAUSE = Cause(
+    key="kinetics",
+    title="reaction kinetics and film",
+    mechanism="charge transfer at the particle surface and the resistance of its surface film",
+    informed_by=Evidence(
+        "pulse",
+        "short pulses of several amplitudes at several SOCs (the charge-transfer overpotential is nonlinear in the "
+        "current, a film's is linear)",
+    ),
+    base=("k_n", "k_p", "R_f_n", "R_f_p"),
+    validated_by="the base model against PyBaMM's DFN (tests/battlab/model/test_model_pybamm.py)",
+)

@@ -1,0 +1,180 @@
+"""A diagnosis's data: logged files as experiments (start SOC, ambient, the noise measured on each log's own
+voltage), checked against the cell, split into training and held-out parts.
+
+Training and held-out parts: with one file its final :data:`HELD_OUT_FRACTION` of samples is held out; with several
+the last file is (or the one given as ``held_out``; a held-out file not among the data is added). Data and cell that
+do not match (voltage outside the cell's window, rest voltage outside its OCV range, more charge than
+:data:`CAPACITY_FACTOR` times its capacity, a simulation that stops before half the data) are one
+:class:`InputError`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from battlab.cell import Cell
+from battlab.identify.data_files import Ambient, ambient_of, check_ambient_keys, load_all
+from battlab.identify.experiments import Experiment
+from protocols.errors import InputError
+from protocols.profile import Profile
+
+#: share of one data file's samples held out (its end)
+HELD_OUT_FRACTION = 0.3
+#: more charge passed in one direction than this times the cell's capacity: data and cell do not match
+CAPACITY_FACTOR = 1.5
+#: a simulation that reaches less than this share of a data set: data and cell do not match
+MIN_COVERAGE = 0.5
+#: widen the cell's voltage window by this [V] when replaying logged data (as ``battlab validate`` does)
+V_MARGIN = 0.15
+
+
+@dataclass(frozen=True)
+class Part:
+    """One experiment and how it is split: samples [0, ``train``) are training, [``train``, n) held out."""
+
+    experiment: Experiment
+    train: int
+
+    @property
+    def n(self) -> int:
+        return self.experiment.voltage.size
+
+    def training(self) -> Experiment | None:
+        """The training samples as an experiment of their own (None: fewer than 10)."""
+        e = self.experiment
+        if self.train < 10:
+            return None
+        if self.train >= self.n:
+            return e
+        k = self.train
+        prof = Profile(e.profile.t[:k], e.profile.current[:k], id=e.name, soc0=e.soc0)
+        var = np.broadcast_to(np.asarray(e.variance, float), (self.n,))[:k]
+        return Experiment(e.name, prof, e.voltage[:k], e.soc0, var, e.ambient, e.T0)
+
+
+def split(data_parts: list[tuple[str, list[Experiment]]], held_out: str | None) -> tuple[list[Part], str]:
+    """Training and held-out parts of the experiments of each file (see the module docstring), and the name of
+    the held-out data."""
+    if held_out is None and len(data_parts) == 1:
+        name, exps = data_parts[0]
+        total = sum(e.voltage.size for e in exps)
+        cut = int(round((1.0 - HELD_OUT_FRACTION) * total))
+        parts, seen = [], 0
+        for e in exps:
+            parts.append(Part(e, int(np.clip(cut - seen, 0, e.voltage.size))))
+            seen += e.voltage.size
+        return parts, f"{name} (final {100 * HELD_OUT_FRACTION:.0f} %)"
+    hold = data_parts[-1][0] if held_out is None else held_out
+    parts = [Part(e, 0 if name == hold else e.voltage.size) for name, exps in data_parts for e in exps]
+    return parts, hold
+
+
+def _file_key(path: str | Path, data: Any) -> set[str]:
+    p = Path(path)
+    return {str(p), p.name, p.stem, p.name.removesuffix(".csv").removesuffix(".bdf"), str(data.name)}
+
+
+def _check_capacity(data: Any, cell: Cell) -> None:
+    q = np.concatenate([[0.0], np.cumsum(data.current[:-1] * np.diff(data.t))]) / 3600.0
+    swing = float(q.max() - q.min())
+    cap = float(cell.capacity())
+    if swing > CAPACITY_FACTOR * cap:
+        raise InputError(
+            f"{data.source or data.name}: {swing:.3f} Ah passed in one direction, more than {CAPACITY_FACTOR:g} × "
+            f"cell {cell.name!r}'s capacity {cap:.3f} Ah: data and cell do not match"
+        )
+
+
+def _measured_noise(e: Experiment, cell: Cell) -> Experiment:
+    """``e`` with the noise variance measured on its own voltage
+    (:func:`battlab.diagnose.residuals.measured_noise_variance`, steps of 1 % of the cell's capacity in A apart),
+    at least the quantisation's: the noise model's level (the paper's regression on intensity, eqs. 37–40) holds
+    for the paper's 2.7 Ah cell, and on a 12.5 Ah cell's hour it is over 1 V, which made s² and every
+    "above the noise" judgement meaningless. ``e`` unchanged when too few steady samples."""
+    from dataclasses import replace
+
+    from battlab.diagnose.residuals import measured_noise_variance
+    from battlab.identify.experiments import QUANTUM
+
+    var = measured_noise_variance(e.voltage, e.profile.current, 0.01 * float(cell["Q_nom"]))
+    return replace(e, variance=max(var, QUANTUM**2 / 12.0)) if np.isfinite(var) else e
+
+
+def _base(cell: Cell) -> Cell:
+    """The cell with its extensions off (the diagnosis scores each extension from "off")."""
+    for key in list(cell.extensions):
+        cell = cell.without_extension(key)
+    return cell
+
+
+@dataclass
+class Prepared:
+    """The data of a diagnosis: the cell (and its base, extensions off), the experiments split into parts, the
+    training experiments, the held-out data's name, each file's name and the load warnings."""
+
+    cell: Cell
+    base: Cell
+    parts: list[Part]
+    train: list[Experiment]
+    held_name: str
+    files: list[str]
+    warnings: list[str] = field(default_factory=list)
+
+
+def prepare(
+    data: Sequence[str | Path],
+    cell: Cell,
+    *,
+    held_out: str | Path | None,
+    soc0: float | None,
+    ambient: Ambient,
+    dt: float,
+    fix_sign: bool,
+) -> Prepared:
+    """Load, check and split the data (see the module docstring)."""
+    from battlab.identify.experiments import experiments_from_data
+
+    base = _base(cell)
+    paths = [str(p) for p in data]
+    if held_out is not None and not any(str(held_out) in _file_key(p, Path(p)) for p in paths):
+        paths.append(str(held_out))
+    check_ambient_keys(paths, ambient)
+    loaded, warned = load_all(paths, fix_sign=fix_sign)
+    hold_name: str | None = None
+    data_parts: list[tuple[str, list[Experiment]]] = []
+    for p, d in zip(paths, loaded, strict=True):
+        _check_capacity(d, base)
+        exps = experiments_from_data(d, base, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
+        data_parts.append((d.name, [_measured_noise(e, base) for e in exps]))
+        if held_out is not None and str(held_out) in _file_key(p, d):
+            hold_name = d.name
+    parts, held_name = split(data_parts, hold_name)
+    train = [e for e in (p.training() for p in parts) if e is not None]
+    if not train:
+        raise InputError("diagnose: no training data left (give more than the held-out file)")
+    if all(p.train >= p.n for p in parts):
+        raise InputError("diagnose: no held-out data (a file given as --held-out must be one of the data)")
+    return Prepared(cell, base, parts, train, held_name, [name for name, _ in data_parts], list(warned))
+
+
+def simulate_on(fm: Any, e: Experiment, names: Sequence[str] = ()) -> Any:
+    return fm.run(fm.theta_of(fm.cell), e.profile, e.soc0, ambient=e.ambient, T0=e.T0, sensitivities=names)
+
+
+def held_out_rmse(fm: Any, cell: Cell, parts: Sequence[Part]) -> float:
+    """RMSE [mV] of ``cell`` on the held-out samples (each experiment simulated from its start), NaN-free part."""
+    from battlab.identify.validation import predict
+
+    err = []
+    for p in parts:
+        if p.train < p.n:
+            pred = predict(fm, cell, p.experiment)
+            e = pred[p.train :] - p.experiment.voltage[p.train :]
+            err.append(e[np.isfinite(e)])
+    e = np.concatenate(err) if err else np.zeros(0)
+    return float(1e3 * np.sqrt(np.mean(e**2))) if e.size else float("nan")

@@ -1,0 +1,121 @@
+"""The one cumulative, group-wise fit (docs/decisions.md), used by ``battlab fit``, the campaign and the benchmarks:
+stage k fits the parameters of groups 1..k on the experiments of stages 1..k, starting where stage k − 1 ended;
+the final intervals are the last stage's.
+
+The same defaults everywhere (:class:`FitSettings`): parameters the data cannot inform are refused before any
+simulation (:func:`battlab.identify.informing.check_informed`), and where a stage would estimate all four orbit
+parameters of an electrode its R_s is held at the stage's start value and the identifiable invariants τ, κ, ρ are
+fitted and reported (:mod:`battlab.identify.reduced`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+from battlab.cell import Cell
+from battlab.identify import fit as F
+from battlab.identify import reduced
+from battlab.identify.ageing import Ageing
+from battlab.identify.experiments import Experiment
+from battlab.identify.fit import FitResult, Stage, StageError
+from battlab.identify.forward import ForwardModel
+from battlab.identify.informing import check_informed
+from battlab.progress import Reporter
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """The stopping rule and defaults of every cumulative fit: ``max_evaluations`` simulations per stage, of which
+    up to ``polish`` for Gauss–Newton steps after the optimiser stops at its limit (:data:`battlab.identify.fit.
+    Options`); ``hold_radii``: fit the identifiable coordinates; ``refuse_uninformed``: refuse parameters the data
+    cannot inform; ``workers``: threads per evaluation (None: one per core; results do not depend on it)."""
+
+    max_evaluations: int = 40
+    polish: int = 8
+    hold_radii: bool = True
+    refuse_uninformed: bool = True
+    workers: int | None = None
+
+    def options(self) -> F.Options:
+        return F.Options(max_nfev=self.max_evaluations, polish=self.polish, workers=self.workers)
+
+
+def stage_names(stages: Sequence[Stage], hold_radii: bool) -> list[tuple[list[str], list[str]]]:
+    """Per stage (cumulative): the names fitted and the radii held."""
+    names: list[str] = []
+    out = []
+    for stg in stages:
+        names += [n for n in stg.names if n not in names]
+        fitted, held = reduced.split(names) if hold_radii else (list(names), [])
+        out.append((fitted, held))
+    return out
+
+
+def check_stages_informed(stages: Sequence[Stage], cell: Cell) -> None:
+    """Refuse, before any simulation, a stage whose data (its own and every earlier stage's) cannot inform one of
+    its parameters: one :class:`InputError` naming it and the experiment that would."""
+    seen: list[Experiment] = []
+    for st in stages:
+        seen += [e for e in st.experiments if e not in seen]
+        check_informed(st.names, seen, 0.01 * float(cell["Q_nom"]))
+
+
+def fit_cumulative(
+    cell: Cell,
+    stages: Sequence[Stage],
+    settings: FitSettings = FitSettings(),
+    *,
+    forward: ForwardModel | None = None,
+    ageing: Ageing | None = None,
+    on_stage: Callable[[int, FitResult], None] | None = None,
+    progress: Reporter | None = None,
+) -> list[FitResult]:
+    """Fit ``stages`` cumulatively from ``cell`` (see the module docstring). ``ageing``
+    (:class:`battlab.identify.ageing.Ageing`): per-file ageing values, each stage starting from the last one's.
+    ``on_stage(k, result)`` is called after each stage, before the next starts (to keep each finished stage);
+    ``progress`` gets ``start``/``advance``/``stop`` events per stage (evaluation k of the stage's limit, its cost).
+
+    Errors in stage k (its fit or ``on_stage``) are raised as :class:`battlab.identify.fit.StageError` with the
+    finished stages; an interrupt passes through unchanged."""
+    if settings.refuse_uninformed:
+        check_stages_informed(stages, cell)
+    fm = forward or ForwardModel(cell)
+    plan = stage_names(stages, settings.hold_radii)
+    current = cell
+    exps: list[Experiment] = []
+    results: list[FitResult] = []
+    opts = settings.options()
+    for k, (stg, (fitted, held)) in enumerate(zip(stages, plan, strict=True), start=1):
+        exps += list(stg.experiments)
+        rep = progress.child(f"stage {k} of {len(stages)}") if progress is not None else None
+
+        def tick(n: int, cost: float, _rep: Reporter | None = rep) -> None:
+            if _rep is not None:
+                _rep("advance", n, opts.max_nfev, f"cost {cost:.4g}")
+
+        try:
+            if rep is not None:
+                rep("start", 0, opts.max_nfev, f"{len(fitted)} parameters, {len(exps)} experiments")
+            res = F.fit(
+                cell, exps, fitted, options=opts, forward=fm, start=current, stage=k, ageing=ageing, on_evaluation=tick
+            )
+            if ageing is not None:
+                values = res.extra.get("ageing", {})
+                ageing = ageing.with_start({f: {n: v["value"] for n, v in d.items()} for f, d in values.items()})
+            if held:
+                res = replace(res, statistics=reduced.with_held(res.statistics, reduced.held_values(current, held)))
+            if rep is not None:
+                rep("stop", res.convergence.iterations, opts.max_nfev, res.convergence.reason)
+            if on_stage is not None:
+                on_stage(k, res)
+        except Exception as exc:
+            if rep is not None:
+                rep("failed", text=str(exc))
+            raise StageError(k, len(stages), fitted + held, results, exc) from exc
+        results.append(res)
+        current = res.cell
+    return results
+
+
+__all__ = ["FitSettings", "Stage", "StageError", "check_stages_informed", "fit_cumulative", "stage_names"]

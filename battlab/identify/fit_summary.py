@@ -1,0 +1,146 @@
+"""The one machine-readable summary of a cumulative fit (``battlab fit``'s ``summary.json``, the campaign's fit
+stages), with how far each interval can be trusted.
+
+An interval (eq. 46) is a statement about noise around a converged fit of a model that explains its data. It is
+marked ``trusted: false`` with the reasons when that does not hold: the fit did not converge, the statistics are
+invalid, the parameter is set-identified (only its invariant τ, κ or ρ is: its interval is an orbit), it sits at a
+bound (one-sided) or its interval runs to one (the data do not inform it there), or s² shows model error (then the
+interval scaled by s², ``ci95_scaled``, is the honest one, and is given).
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+from typing import Any
+
+from battlab import parameters
+from battlab.identify.fit import FitResult
+from battlab.identify.statistics import Estimate, Statistics
+
+#: s² above this: the weighted residual is model error, not the noise the weights assume (at N ≈ 10⁴ samples the
+#: sampling spread of s² is about ±0.02, so 2 is far outside it)
+S2_MODEL_ERROR = 2.0
+#: θ̄ this close to 0 or 1 counts as reaching the bound
+AT_EDGE = 1e-3
+
+
+def stages_text(done: int, total: int) -> str:
+    """``"stage 1 of 4"``, ``"stages 1–3 of 4"``, or with no stage done ``"equilibrium only (stages 0 of 4)"`` (the
+    only result written before stage 1 is the equilibrium fit's)."""
+    if done == 0:
+        return f"equilibrium only (stages 0 of {total})"
+    return f"stage 1 of {total}" if done == 1 else f"stages 1–{done} of {total}"
+
+
+def fit_caveats(converged: bool, st: Statistics) -> list[str]:
+    """Why no interval of this fit can be trusted as it stands (empty: the fit's own conditions hold)."""
+    out = []
+    if not converged:
+        out.append("the fit did not converge")
+    if st.s2 == st.s2 and st.s2 > S2_MODEL_ERROR:
+        out.append(f"s² = {st.s2:.3g} > {S2_MODEL_ERROR:g}: the residual is model error, not noise (use ci95_scaled)")
+    return out
+
+
+def estimate_caveats(e: Estimate) -> list[str]:
+    """Why this parameter's interval cannot be trusted, beyond the fit's own caveats."""
+    out = []
+    if e.set_identified:
+        out.append("set-identified: the data fix only its invariant (τ, κ or ρ); the interval is the symmetry orbit's")
+    elif not e.identifiable or e.ci95 is None:
+        out.append("not identifiable from these data")
+    if e.at_bound:
+        out.append(f"at its {e.at_bound} bound (one-sided interval)")
+    elif e.ci95 is not None and not e.set_identified:
+        spec = parameters.spec(e.name)
+        lo, hi = (spec.normalise(v) if v > 0 or spec.scale.value == "linear" else 0.0 for v in e.ci95)
+        if lo <= AT_EDGE or hi >= 1.0 - AT_EDGE:
+            out.append("its interval runs to a bound: the data do not inform it there")
+    return out
+
+
+def parameter_entry(e: Estimate, caveats: Sequence[str]) -> dict[str, Any]:
+    why = [*caveats, *estimate_caveats(e)]
+    return {
+        "value": e.value,
+        "ci95": list(e.ci95) if e.ci95 else [None, None],
+        "ci95_scaled": list(e.ci95_scaled) if e.ci95_scaled else None,
+        "at_bound": e.at_bound is not None,
+        "bound": e.at_bound,
+        "identifiable": e.identifiable,
+        "set_identified": e.set_identified,
+        "theta_bar": e.theta_bar,
+        "trusted": not why,
+        "untrusted_because": why,
+    }
+
+
+def invariant_entries(st: Statistics, caveats: Sequence[str]) -> dict[str, dict[str, Any]]:
+    return {
+        i.name: {
+            "value": i.value,
+            "ci95": list(i.ci95),
+            "definition": i.definition,
+            "trusted": not caveats,
+            "untrusted_because": list(caveats),
+        }
+        for i in st.invariants
+    }
+
+
+def dynamic_summary(results: Sequence[FitResult], total: int, base: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The summary after the finished stages ``results`` of ``total`` (partial until the last), on top of ``base``
+    (e.g. the equilibrium fit's entries, which a dynamic fit keeps)."""
+    out = copy.deepcopy(base) if base else {"parameters": {}, "rmse_mV": {}, "converged": True}
+    last = results[-1]
+    st = last.statistics
+    partial = len(results) < total
+    converged = bool(out.get("converged", True) and all(r.convergence.converged for r in results) and not partial)
+    caveats = fit_caveats(all(r.convergence.converged for r in results), st)
+    if not st.valid:
+        caveats.append(f"invalid statistics: {st.reason}")
+    for e in st.estimates:
+        out["parameters"][e.name] = parameter_entry(e, caveats)
+    out["invariants"] = invariant_entries(st, caveats)
+    out["rmse_mV"] = {**out.get("rmse_mV", {}), **last.rmse_mV}
+    out["rmse_before_mV"] = dict(results[0].rmse_before_mV)
+    out["s2"] = st.s2
+    out["converged"] = converged
+    out["partial"] = partial
+    out["status"] = ("partial: " if partial else "complete: ") + stages_text(len(results), total)
+    out["stages_done"], out["stages_total"] = len(results), total
+    out["stages"] = [r.report() for r in results]
+    held = [e.name for e in st.estimates if e.name not in last.names]
+    if held:
+        out["held"] = {e.name: e.value for e in st.estimates if e.name in held}
+    trusted = [n for n, p in out["parameters"].items() if p.get("trusted")]
+    out["trust"] = {
+        "caveats": caveats,
+        "trusted": trusted,
+        "untrusted": [n for n, p in out["parameters"].items() if p.get("trusted") is False],
+    }
+    return out
+
+
+def equilibrium_only(base: dict[str, Any], total: int) -> dict[str, Any]:
+    """The summary of the equilibrium fit alone: partial, none of ``total`` stages done, or (``total`` 0: no dynamic
+    stage follows) complete."""
+    out = copy.deepcopy(base)
+    partial = total > 0
+    status = "partial: " + stages_text(0, total) if partial else "complete: equilibrium only"
+    converged = bool(out["converged"]) and not partial
+    out.update(partial=partial, status=status, stages_done=0, stages_total=total, converged=converged, stages=[])
+    return out
+
+
+__all__ = [
+    "S2_MODEL_ERROR",
+    "dynamic_summary",
+    "equilibrium_only",
+    "estimate_caveats",
+    "fit_caveats",
+    "invariant_entries",
+    "parameter_entry",
+    "stages_text",
+]
