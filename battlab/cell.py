@@ -195,8 +195,12 @@ class Cell:
     # --- construction ---------------------------------------------------------------------------------
     @classmethod
     def load(cls, name_or_path: str | Path) -> Cell:
-        """A built-in cell (``nca18650``, ``nca18650-true``), a cell TOML file or a BPX JSON file."""
+        """A built-in cell (``nca18650``, ``nca18650-true``), a cell TOML file or a BPX JSON file; any of them followed
+        by catalog extensions switched on, ``CELL+KEY[:NAME=VALUE,...]+...`` (e.g. a virtual truth that hides an
+        effect: ``nca18650-true+contact_resistance:R_c=0.005``)."""
         text = str(name_or_path)
+        if "+" in text and not Path(text).exists():
+            return _with_extension_specs(text)
         if text == "nca18650-true":
             base = cls.load("nca18650")
             cell = base.with_values(**{p.name: p.truth for p in parameters.DYNAMIC})
@@ -435,6 +439,25 @@ class Cell:
             return float(self["n_Li"])
         n0, _, p0, _ = self.stoichiometry_window()
         return self.electrode_moles("n") * n0 + self.electrode_moles("p") * p0
+
+
+def _with_extension_specs(text: str) -> Cell:
+    """``CELL+KEY[:NAME=VALUE,...]+...``: the cell with those catalog extensions on (one error naming the part)."""
+    base, *specs = text.split("+")
+    cell = Cell.load(base)
+    for spec in specs:
+        key, _, body = spec.partition(":")
+        values: dict[str, float] = {}
+        for item in filter(None, (x.strip() for x in body.split(","))):
+            name, eq, value = item.partition("=")
+            try:
+                values[name.strip()] = float(value)
+            except ValueError:
+                raise InputError(f"cell {text!r}: {item!r} is not NAME=VALUE with a number") from None
+            if not eq:
+                raise InputError(f"cell {text!r}: {item!r} is not NAME=VALUE")
+        cell = cell.with_extension(key.strip(), **values)
+    return cell.renamed(text)
 
 
 def _check_extension(cell: str, key: str, values: Mapping[str, Any]) -> dict[str, float]:

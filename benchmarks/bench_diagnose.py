@@ -239,7 +239,7 @@ def outcome(summary: dict[str, Any], truth: str | None) -> str:
     ``undetectable``); else "null"."""
     if summary.get("cause"):
         return str(summary["cause"])
-    told = {c["cause"] for c in summary.get("cannot_tell", [])}
+    told = {k for c in summary.get("cannot_tell", []) for k in c.get("causes", [c["cause"]])}
     if truth is None:
         return "cannot tell" if told else "null"
     told |= {c["cause"] for c in (*summary.get("untestable", []), *summary.get("undetectable", []))}

@@ -276,9 +276,9 @@ def interior(name: str, truth: Any) -> bool:
 
 def fit(
     work: Path, logs: list[Path], plan: Path | None, max_iter: int, start: str = "nca18650", noise: Path | None = None
-) -> tuple[dict[str, tuple[bool, bool | None]], float, float]:
+) -> tuple[dict[str, tuple[bool, bool | None, bool]], float, float]:
     """Fit the logs from ``start`` in the plan's groups (None: the groups the logs carry), weighted by ``noise``;
-    print estimates vs truth; returns ({name: (covered by the 95 % interval, by the s²-scaled one)} over the
+    print estimates vs truth; returns ({name: (covered by the 95 % interval, by the s²-scaled one, trusted)} over the
     interior parameters and invariants (:func:`interior`), mean |log10 error| of the point-identified parameters
     and the invariants, the fit's seconds)."""
     from battlab import Cell, parameters, workflow
@@ -305,7 +305,8 @@ def fit(
     print(f"  noise model: {rep.summary['noise']['source']}")
     st = rep.last.statistics
     root = math.sqrt(st.s2)
-    covered: dict[str, tuple[bool, bool | None]] = {}
+    trusted = {**rep.summary["parameters"], **rep.summary.get("invariants", {})}
+    covered: dict[str, tuple[bool, bool | None, bool]] = {}
     errors: list[float] = []
     for e in st.estimates:
         tv = float(truth[e.name])
@@ -318,7 +319,7 @@ def fit(
         flag = "" if inside else " (truth on a bound: not counted)"
         print(f"    {e.name:12s} {e.value:11.4g} truth {tv:11.4g} ci95 {ci:28s} {kind:5s} covered {cov}{flag}")
         if cov is not None and inside:
-            covered[e.name] = (cov, cov_s if not e.set_identified else cov)
+            covered[e.name] = (cov, cov_s if not e.set_identified else cov, bool(trusted[e.name].get("trusted")))
         if cov is not None and not e.set_identified:
             errors.append(abs(math.log10(e.value / tv)))
     for i in st.invariants:
@@ -332,7 +333,7 @@ def fit(
         ci = f"[{lo:.4g}, {hi:.4g}]"
         print(f"    {i.name:12s} {i.value:11.4g} truth {tv:11.4g} ci95 {ci:28s} inv   covered {cov}{flag}")
         if inside:
-            covered[i.name] = (cov, cov_s)
+            covered[i.name] = (cov, cov_s, bool(trusted.get(i.name, {}).get("trusted")))
         errors.append(abs(math.log10(i.value / tv)))
     physical = {k: v for k, v in covered.items() if k in parameters.NAMES}
     invs = {k: v for k, v in covered.items() if k not in parameters.NAMES}
@@ -340,7 +341,9 @@ def fit(
     print(
         f"  covered {sum(v[0] for v in physical.values())} of {len(physical)} interior parameters "
         f"({sum(bool(v[1]) for v in physical.values())} with s2-scaled intervals), "
-        f"{sum(v[0] for v in invs.values())} of {len(invs)} invariants; s2 {st.s2:.3g}; mean |log10 error| {err:.3f}"
+        f"{sum(v[0] for v in invs.values())} of {len(invs)} invariants; s2 {st.s2:.3g}; mean |log10 error| {err:.3f}; "
+        f"trusted intervals: {sum(v[0] for v in covered.values() if v[2])} of {sum(v[2] for v in covered.values())} "
+        "cover the truth"
     )
     return covered, err, secs
 
@@ -485,6 +488,13 @@ def main() -> None:
             scaled = [x[1] for x in v if x[1] is not None]
             print(f"  {k:12s} {sum(x[0] for x in v)}/{len(v)}; {sum(scaled)}/{len(scaled)}")
         print("per run (interior parameters): " + "; ".join(per_run))
+        trusted = [x[0] for v in tally.values() for x in v if x[2]]
+        if trusted:
+            print(
+                f"trusted intervals over the seeds: {sum(trusted)} of {len(trusted)} cover the truth "
+                f"({100 * sum(trusted) / len(trusted):.0f} %; nominal 95 %); "
+                f"{sum(x[2] for v in tally.values() for x in v)} of {sum(len(v) for v in tally.values())} trusted"
+            )
         if fit_s:
             print(f"fit time: median {np.median(fit_s):.0f} s, max {max(fit_s):.0f} s")
     if a.sequential:

@@ -313,7 +313,7 @@ def judge(case: Case, summary: dict[str, Any]) -> str:
     if named is not None:
         return "WRONG"
     listed = {r["cause"] for r in summary["ranking"] if r["passes"]}
-    listed |= {c["cause"] for c in summary.get("cannot_tell", [])}
+    listed |= {k for c in summary.get("cannot_tell", []) for k in c.get("causes", [c["cause"]])}
     listed |= {c["cause"] if isinstance(c, dict) else c for c in summary.get("untestable", [])}
     tested = {r["cause"] for r in summary["ranking"]}
     return "honest" if case.cause in listed or case.cause not in tested else "missed"

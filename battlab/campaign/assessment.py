@@ -1,6 +1,6 @@
 """The campaign's assessment stages: the cumulative fits of the designed experiments, the conventional baseline
 (its tests on the tester, fitted the same way), validation on held-out tests (nominal vs conventional vs OED), the
-diagnosis of what the fitted cell still gets wrong, the BPX export and the report."""
+BPX export."""
 
 from __future__ import annotations
 
@@ -153,22 +153,6 @@ def validation(camp: Campaign) -> Callable[[StageContext], StageOutput]:
         files = {f"log_{k}": rel_path(ctx, p) for k, (p, _) in logs.items()}
         files.update(summary="validation/validation.json", health=health_file(camp, ctx, "validation", n0))
         return StageOutput(files, summary, hours)
-
-    return run
-
-
-def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
-    def run(ctx: StageContext) -> StageOutput:
-        from battlab.campaign.identify import residuals
-
-        cell = Cell.load(str(ctx.path("fit", "cell")))
-        logs = {
-            k.removeprefix("log_"): ctx.directory / v
-            for k, v in ctx.inputs["validation"].files.items()
-            if k.startswith("log_")
-        }
-        summary = residuals(logs, cell, ctx.directory / "diagnosis")
-        return StageOutput({"summary": "diagnosis/diagnosis.json"}, summary)
 
     return run
 

@@ -26,6 +26,11 @@ Example (every key optional)::
                                   # run with UDDS from SOC 0.8; empty: the paper's set (--quick: -1/3, -2)
     [validation]
     c_rates = []                  # discharges from full (C, > 0), with US06 from SOC 0.8; empty: 0.5, 1 (--quick: 1)
+    [diagnosis]
+    decide = true                 # run the experiment that separates causes the data cannot tell apart
+    budget_hours = 24.0           # lab hours those experiments may take
+    ambients_degC = [10.0, 25.0, 40.0]   # what the chamber reaches ([25.0]: no chamber range)
+    max_evaluations = 20          # per held-out fit of a cause
     [stages]
     skip = []                     # stage names to leave out (e.g. ["conventional"])
 
@@ -88,6 +93,14 @@ class ValidationSection:
 
 
 @dataclass(frozen=True)
+class DiagnosisSection:
+    decide: bool = True
+    budget_hours: float = 24.0
+    ambients_degC: tuple[float, ...] = (10.0, 25.0, 40.0)
+    max_evaluations: int = 20
+
+
+@dataclass(frozen=True)
 class StagesSection:
     skip: tuple[str, ...] = ()
 
@@ -103,6 +116,7 @@ class CampaignConfig:
     fit: FitSection = field(default_factory=FitSection)
     conventional: ConventionalSection = field(default_factory=ConventionalSection)
     validation: ValidationSection = field(default_factory=ValidationSection)
+    diagnosis: DiagnosisSection = field(default_factory=DiagnosisSection)
     stages: StagesSection = field(default_factory=StagesSection)
     quick: bool = False
 
@@ -158,6 +172,12 @@ def _coerce(value: Any, default: Any, where: str) -> Any:
         if where.endswith(".c_rates"):
             if not all(isinstance(v, int | float) and not isinstance(v, bool) and v != 0 for v in value):
                 raise InputError(f"{where}: expected a list of non-zero C-rates, got {value!r}")
+            return tuple(float(v) for v in value)
+        if where.endswith("_degC"):
+            if not value or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value):
+                raise InputError(f"{where}: expected a list of temperatures in degC, got {value!r}")
+            if not all(-40.0 <= v <= 80.0 for v in value):
+                raise InputError(f"{where}: temperatures must lie within -40..80 degC, got {value!r}")
             return tuple(float(v) for v in value)
         kind = int if where.endswith(".ids") else str
         if not all(isinstance(v, kind) and not isinstance(v, bool) for v in value):

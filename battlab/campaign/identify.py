@@ -194,52 +194,6 @@ def _slug(name: str) -> str:
     return "".join(ch if ch.isalnum() else "_" for ch in name).strip("_")
 
 
-def residuals(logs: Mapping[str, Path], cell: Cell, out: Path) -> dict[str, Any]:
-    """Residual analysis (battlab.diagnose.residuals) of the identified cell on each validation log: what the
-    simulation gets wrong, when, and whether the residual is white. Naming a cause (score tests of the model
-    extensions, held-out fits of the leading ones) is ``battlab diagnose``'s work: it takes minutes per hour of data,
-    so the campaign leaves it to that command and its summary says how to run it on these logs."""
-    from battlab.campaign import data as D
-    from battlab.diagnose.figures import conditional_errors, residual_vs_time
-    from battlab.diagnose.residuals import analyse
-    from battlab.identify.forward import ForwardModel
-    from battlab.identify.validation import prediction
-
-    out.mkdir(parents=True, exist_ok=True)
-    fm = ForwardModel(cell, v_margin=0.15)
-    per: dict[str, Any] = {}
-    figures: list[str] = []
-    for name, path in logs.items():
-        dt = 10.0 if "discharge" in name else 1.0
-        e = D.experiment(path, cell, name=name, dt=dt)
-        p, _ = prediction(fm, cell, e)
-        ok = np.isfinite(p)
-        a = analyse(
-            e.profile.t[ok], e.voltage[ok], p[ok], e.profile.current[ok], noise_variance=float(np.mean(e.variance))
-        )
-        per[name] = _plain(a.summary())
-        slug = _slug(name)
-        figures.append(residual_vs_time(a, out / f"{slug}.residual.png", f"{name}: residual").name)
-        figures.append(conditional_errors(a, out / f"{slug}.conditional.png").name)
-    summary = {
-        "method": "residual analysis only (battlab.diagnose.residuals); no extension was scored or fitted",
-        "name_a_cause": "battlab diagnose "
-        + " ".join(f"runs/validation/{Path(p).name}" for p in logs.values())
-        + " --cell fit/oed.bpx.json -o diagnosis/causes",
-        "cause": None,
-        "data": per,
-        "figures": figures,
-    }
-    _json(out / "diagnosis.json", summary)
-    return summary
-
-
-def _plain(x: Any) -> Any:
-    from battlab.jsonable import json_default
-
-    return json.loads(json.dumps(x, default=json_default))
-
-
 def experiments_hours(exps: Sequence[Any]) -> float:
     return float(sum(e.hours for e in exps))
 

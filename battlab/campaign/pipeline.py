@@ -4,7 +4,8 @@ the settings it reads, whether it uses the tester, the files it writes and its r
 capacity check → OCV test → equilibrium fit → library → sensitivity sweep → groups → repeated trials and the
 noise model → designs per group → the designed experiments on the tester → cumulative fits with intervals →
 conventional baseline (its tests on the tester, fitted the same way) → validation (held-out tests on the tester;
-nominal vs conventional vs OED) → diagnosis (residual analysis) → capacity check again → BPX export → report.
+nominal vs conventional vs OED) → diagnosis (name what the fit misses, decide, extend) → capacity check again →
+BPX export → report.
 
 Each stage writes its artefacts under the campaign directory and returns its files, a JSON summary and the lab
 hours it used. Runs on the tester are logged under ``runs/``; a run that does not complete fails its stage. To add
@@ -14,9 +15,10 @@ a stage: write its function of the campaign (and its report section), and add on
 from __future__ import annotations
 
 from battlab.campaign import report as R
-from battlab.campaign.assessment import conventional, diagnosis, export, fit_oed, validation
+from battlab.campaign.assessment import conventional, export, fit_oed, validation
 from battlab.campaign.characterisation import capacity, equilibrium, noise, ocv
 from battlab.campaign.context import Campaign
+from battlab.campaign.diagnosis import diagnosis
 from battlab.campaign.experiment_design import design, experiments, groups, library, sweep
 from battlab.campaign.stages import Stage, StageContext, StageOutput
 from battlab.campaign.unit import Unit, resolve_needs
@@ -123,12 +125,12 @@ UNITS: tuple[Unit, ...] = (
     ),
     Unit(
         "diagnosis",
-        "diagnosis (residual analysis)",
+        "diagnosis (what the fitted cell still misses, the deciding experiments, the extended cell)",
         diagnosis,
-        ("fit", "validation"),
-        (),
-        False,
-        ("summary",),
+        ("fit", "validation", "experiments", "noise"),
+        ("campaign", "fit", "diagnosis"),
+        True,
+        ("summary", "report", "cell", "log_*"),
         R.diagnosis,
     ),
     Unit(

@@ -141,6 +141,18 @@ def measurement(
     return _plan(label or f"profile {profile.id}", steps, capacity_ah, FINE_S, ambient_degC)
 
 
+def prepared_measurement(
+    profile: Profile, capacity_ah: float, measured_ah: float, ambient_degC: float, *, rest_after_s: float = REST_AFTER_S
+) -> Plan:
+    """The preparation and the measurement of ``profile`` as one run, logged every second: the log starts where a
+    full charge leaves the cell nearly uniform, so its replay carries the gradients the discharge to the start SOC and
+    the rest leave (a measurement log of its own starts from a uniform cell at its first rest voltage)."""
+    prep = prepare(float(profile.soc0 if profile.soc0 is not None else 0.5), capacity_ah, measured_ah, ambient_degC)
+    meas = measurement(profile, capacity_ah, ambient_degC, rest_after_s=rest_after_s)
+    steps = [*prep.protocol.steps, *meas.protocol.steps]
+    return _plan(f"{meas.protocol.name}, prepared", steps, capacity_ah, FINE_S, ambient_degC)
+
+
 def constant_current(
     c_rate: float,
     capacity_ah: float,

@@ -376,21 +376,43 @@ def validation(view: View) -> Section:
 
 
 def diagnosis(view: View) -> Section:
+    """What the fitted cell still misses: the residual before, the cause named (or what cannot be told apart), the
+    deciding experiments run, and the residual after the extend step on every held-out validation test."""
     dg = view.summaries["diagnosis"]
-    blocks: list[Block] = [Paragraph(dg["method"])]
-    if dg.get("name_a_cause"):
-        blocks.append(Paragraph(f"To name a cause, in the campaign directory: {dg['name_a_cause']}"))
-    for n, a in dg["data"].items():
+    cause = dg.get("cause")
+    blocks: list[Block] = [
+        Paragraph(
+            f"cause: {cause} ({dg.get('how') or 'extension'})" if cause else "no cause named",
+            "bad" if cause else ("good" if dg.get("residual_over_noise", 0) < 10 else "bad"),
+        ),
+        Paragraph(dg.get("verdict", "")),
+        Paragraph(dg.get("method", ""), ""),
+    ]
+    for c in dg.get("cannot_tell", []):
+        blocks.append(Paragraph(f"cannot tell {', '.join(c.get('causes', [c['cause']]))}: {c['experiment']}"))
+    if dg.get("rounds"):
+        from battlab.diagnose.report import rounds_table
+
+        cols, rows = rounds_table(dg["rounds"])
+        blocks.append(Table(cols, rows, caption="deciding experiments run on the tester"))
+    if dg.get("undecided"):
+        blocks.append(Paragraph(f"undecided: {dg['undecided']}", "bad"))
+    table = dg.get("validation_rmse_mV") or {}
+    if table:
+        names = list(next(iter(table.values())))
         blocks.append(
-            KeyValues(
-                {
-                    f"{n}: {k}": a.get(k)
-                    for k in ("rmse_mV", "bias_mV", "s2", "ljung_box_p", "slow_power_share")
-                    if k in a
-                }
+            Table(
+                ["held-out test", "before [mV]", "after [mV]"],
+                [[n, table["before"][n], table["after"][n]] for n in names],
+                caption=f"the OED fit before and after the {cause} extension (extend step)",
             )
         )
-    blocks += [Figure(view.directory / "diagnosis" / fig, fig) for fig in dg.get("figures", [])[:4]]
+    g = dg.get("diagnosis_gain") or {}
+    if g:
+        blocks.append(KeyValues({k: v for k, v in g.items() if not isinstance(v, dict)}))
+    page = view.file("diagnosis", "report")
+    if page is not None:
+        blocks.append(Paragraph(f"the diagnosis's own report: {page.relative_to(view.directory)}"))
     return Section("Diagnosis", blocks)
 
 

@@ -26,20 +26,23 @@ _LAM = "loss of active material at a constant rate (cf. PyBaMM's 'loss of active
 @dataclass(frozen=True)
 class CapacityFade(Extension):
     """Ageing during a test. A lithium-consuming side reaction in the negative electrode (SEI growth, reaction
-    limited, Tafel kinetics): per volume a_s j_side [A m⁻³], cathodic, with
+        limited, Tafel kinetics): per volume a_s j_side [A m⁻³], cathodic, with
 
-        j_side = −I_side / (a_s⁰ A L⁻) · exp(−α_side F / (R T) (φ_s − φ_e − U_ref)),   U_ref = 0.1 V,
+            j_side = −I_side / (a_s⁰ A L⁻) · exp(−α_side F / (R T) (φ_s − φ_e − U_ref)),   U_ref = 0.1 V,
 
-    so I_side [A] is the total side current while the surface potential difference φ_s − φ_e is at U_ref (graphite
-    near half lithiated) and α_side = 0 makes it a constant rate. It is PyBaMM's reaction-limited SEI
-    (``"SEI": "reaction limited (asymmetric)"``, no film resistance, growth activation energy 0) with
-    j0_sei = I_side / (a_s⁰ A L⁻) · exp(−α_side F / (R T_ref) (U_sei − U_ref)). The side reaction takes Li⁺ from
-    the electrolyte and its electrons through the solid: in the charge balance (A9–A16) the particles' intercalation
-    current falls short of the cell's by the side current, so cyclable lithium is lost at ∫ a_s j_side dV / F (and
-    the cell self-discharges at rest, a mixed potential). Loss of active material at a constant rate per electrode:
-    a state f_e (the fraction left, from 1) with df_e/dt = −lam_e/3600 and a_s = f_e · 3 ε_s/R_s (PyBaMM's
-    "current-driven" loss of active material at a constant rate: the lost material takes its lithium with it, the
-    side reaction shrinks with the surface)."""
+        so I_side [A] is the total side current while the surface potential difference φ_s − φ_e is at U_ref (graphite
+        near half lithiated) and α_side = 0 makes it a constant rate. It is PyBaMM's reaction-limited SEI
+        (``"SEI": "reaction limited (asymmetric)"``, no film resistance, growth activation energy 0) with
+        j0_sei = I_side / (a_s⁰ A L⁻) · exp(−α_side F / (R T_ref) (U_sei − U_ref)). The side reaction takes Li⁺ from
+        the electrolyte and its electrons through the solid: in the charge balance (A9–A16) the particles' intercalation
+        current falls short of the cell's by the side current, so cyclable lithium is lost at ∫ a_s j_side dV / F (and
+        the cell self-discharges at rest, a mixed potential). Loss of active material at a constant rate per electrode:
+        a state f_e (the fraction left, from 1) with df_e/dt = −lam_e/3600 and a_s = f_e · 3 ε_s/R_s (PyBaMM's
+        "current-driven" loss of active material at a constant rate: the lost material takes its lithium with it, the
+        side reaction shrinks with the surface). Active material lost before the test (since the cell was
+    parameterised): the fraction lost_e, a_s = (1 − lost_e) f_e · 3 ε_s/R_s: the electrode's capacity and surface
+    shrink together, its particles' stoichiometry at a given voltage stays (PyBaMM's lower ε_s at the same
+    stoichiometries)."""
 
     key: ClassVar[str] = KEY
     #: the surface potential difference [V] at which I_side is the side current
@@ -62,7 +65,7 @@ class CapacityFade(Extension):
 
     def surface_area(self, c: Evaluation, e: str, a: ca.SX) -> ca.SX:
         f = c.y[c.sl[self.key]]
-        return a * (f[0] if e == "n" else f[1])
+        return a * (1.0 - self.p(c, f"lost_{e}")) * (f[0] if e == "n" else f[1])
 
     def rates(self, c: Evaluation, x: ca.SX) -> ca.SX:
         return ca.vertcat(-self.p(c, "lam_n"), -self.p(c, "lam_p")) / 3600.0
@@ -99,9 +102,15 @@ CAUSE = Cause(
         extension_parameter(
             KEY, "lam_p", "1/h", (0.0, 0.01), 0.0, "positive active-material loss rate", _LAM, typical=1e-3
         ),
+        extension_parameter(
+            KEY, "lost_n", "1", (0.0, 0.3), 0.0, "negative active material lost before the test", _LAM, typical=0.03
+        ),
+        extension_parameter(
+            KEY, "lost_p", "1", (0.0, 0.3), 0.0, "positive active material lost before the test", _LAM, typical=0.03
+        ),
     ),
     slots=frozenset({"side_reaction_n", "active_material"}),
-    example={"I_side": 0.005, "alpha_side": 0.5, "lam_n": 0.008, "lam_p": 0.004},
+    example={"I_side": 0.005, "alpha_side": 0.5, "lam_n": 0.008, "lam_p": 0.004, "lost_n": 0.04, "lost_p": 0.06},
     validated_by="PyBaMM's reaction-limited SEI with current-driven loss of active material "
     "(benchmarks/bench_extensions.py)",
 )

@@ -45,7 +45,8 @@ class Cause:
     below which the cell rests); ``untestable(experiments, i_rest)``: why a diagnosis on them cannot test the cause
     at any size; ``differentiable_at_off``: its voltage is differentiable at "off" (a score test is possible);
     ``example``: values that switch it on at a realistic size (tests, benchmarks); ``validated_by``: the reference
-    it is checked against and where."""
+    it is checked against and where; ``separates``: per other cause that mimics it, the experiment that tells
+    them apart."""
 
     key: str
     title: str
@@ -61,9 +62,11 @@ class Cause:
     differentiable_at_off: bool = True
     example: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
     validated_by: str = ""
+    separates: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "example", MappingProxyType(dict(self.example)))
+        object.__setattr__(self, "separates", MappingProxyType(dict(self.separates)))
         object.__setattr__(self, "slots", frozenset(self.slots))
         object.__setattr__(self, "composes_with", frozenset(self.composes_with))
         if (self.extension is None) != (not self.parameters):

@@ -7,12 +7,14 @@ kinetics' Arrhenius law, R_c's a linear coefficient): at one ambient the data ca
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import casadi as ca
 
-from battlab.causes.cause import Cause, Evidence
+from battlab.causes.cause import Cause, Evidence, Reason
+from battlab.causes.evidence import ambient_text, one_ambient
 from battlab.causes.extension import Evaluation, Extension
 from battlab.specs import extension_parameter
 
@@ -34,6 +36,12 @@ class ContactResistance(Extension):
         return V - R * c.I_dis
 
 
+def _uninformed(name: str, experiments: Sequence[Any], i_rest: float) -> Reason:
+    """Its temperature coefficient shows only through a change of temperature (a metal contact's is about 0.4 %/K:
+    the self-heating of a test at one ambient moves it by a few 0.1 %)."""
+    return ambient_text(experiments) if name == "dRc_dT" and one_ambient(experiments) else None
+
+
 CAUSE = Cause(
     key=KEY,
     title="contact resistance",
@@ -49,9 +57,14 @@ CAUSE = Cause(
         extension_parameter(
             KEY, "R_c", "Ohm", (0.0, 0.02), 0.0, "series contact resistance at T_ref", _GUO, typical=0.005
         ),
-        extension_parameter(KEY, "dRc_dT", "Ohm/K", (-2e-4, 2e-4), 0.0, "its temperature coefficient", _PYBAMM),
+        extension_parameter(KEY, "dRc_dT", "Ohm/K", (-3e-5, 3e-5), 0.0, "its temperature coefficient", _PYBAMM),
     ),
     slots=frozenset({"series_resistance"}),
-    example={"R_c": 0.004, "dRc_dT": 5e-5},
+    uninformed=_uninformed,
+    example={"R_c": 0.004, "dRc_dT": 2e-5},
     validated_by="PyBaMM's 'contact resistance' option on a BPX cell (benchmarks/bench_extensions.py)",
+    separates={
+        "kinetics": "short pulses at two ambient temperatures (a series resistance barely changes with temperature, "
+        "the film resistance and the charge transfer follow the kinetics' Arrhenius law)"
+    },
 )

@@ -18,4 +18,8 @@ CAUSE = Cause(
     ),
     base=("k_n", "k_p", "R_f_n", "R_f_p"),
     validated_by="the base model against PyBaMM's DFN (tests/battlab/model/test_model_pybamm.py)",
+    separates={
+        "contact_resistance": "short pulses at two ambient temperatures (the film resistance and the charge "
+        "transfer follow the kinetics' Arrhenius law, a series resistance barely changes)"
+    },
 )

@@ -56,8 +56,14 @@ def _uninformed(name: str, experiments: Sequence[Any], i_rest: float) -> Reason:
 
 
 def _untestable(experiments: Sequence[Any], i_rest: float) -> Reason:
-    if one_ambient(experiments):
-        return "one ambient temperature: activation energies are seen only through a change of temperature"
+    """At one ambient only the logged surface temperature shows the heat balance (the activation energies act only
+    through a change of temperature): without it nothing of the cause can be tested."""
+    logged = any(getattr(e, "has_temperature", False) for e in experiments)
+    if one_ambient(experiments) and not logged:
+        return (
+            "one ambient temperature and no surface temperature logged: activation energies are seen only through "
+            "a change of temperature, the heat balance only in the temperature"
+        )
     return None
 
 

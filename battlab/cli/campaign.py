@@ -128,6 +128,15 @@ def campaign(
     else:
         t = Tester(truth=cfg.campaign.truth, seed=cfg.campaign.seed)
     t.preflight()  # the limits file and both instruments, before the campaign directory is touched
+    if t.virtual:  # the hidden cell (it may carry catalog extensions) and the start cell load, before anything runs
+        from battlab.cell import Cell
+
+        start, truth = Cell.load(cfg.campaign.start), Cell.load(cfg.campaign.truth)
+        if start.extensions and set(truth.extensions) - set(start.extensions):
+            raise InputError(
+                f"campaign: the truth's extensions {sorted(truth.extensions)} and the start cell's "
+                f"{sorted(start.extensions)} are different models; start from the base cell"
+            )
     check_output_path(output, directory=True, create=True)
     display = StageDisplay(quiet=quiet)
     try:
@@ -149,6 +158,16 @@ def campaign(
     if v:
         for test, row in v.items():
             click.echo("  " + test + ": " + ", ".join(f"{k} {x:.2f} mV" for k, x in row.items()))
+    dg = next((st["summary"] for st in summary["stages"] if st["name"] == "diagnosis"), None)
+    if dg is not None:
+        g = dg.get("extension_gain") or {}
+        found = f"cause {dg['cause']}" if dg.get("cause") else "no cause named"
+        if g.get("rmse_after_mV") is not None:
+            found += f", held-out RMSE {g['rmse_before_mV']:.2f} -> {g['rmse_after_mV']:.2f} mV after extending"
+        rounds = dg.get("rounds") or []
+        if rounds:
+            found += f" ({len(rounds)} deciding experiment(s), {dg.get('lab_hours', 0):.1f} lab h)"
+        click.echo(f"  diagnosis: {found}")
 
 
 @contextlib.contextmanager

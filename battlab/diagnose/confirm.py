@@ -1,126 +1,237 @@
-"""The held-out confirmation of a diagnosis: the leading causes' extensions fitted on the training part beside the
-base parameters that explain most of the residual, the base model given the same fit, and the cause named only when
-its fit predicts the held-out part clearly better; and what the data cannot decide.
+"""The held-out confirmation of a diagnosis: fits on the training part, judged on the held-out part.
+
+Candidates, each fitted on the training part with the same optimiser and stopping rule, on every logged channel:
+
+- the cell as given (no fit);
+- the base refit: the :data:`N_BASE` base parameters whose directions explain most of the residual, whichever cause
+  owns them;
+- each leading cause as a mechanism: its own base parameters (those the cell holds inside their search range) and
+  its extension's parameters the data inform.
+
+The baseline is the better of the cell as given and the base refit on the held-out part. A cause is named only when
+its fit beats the baseline by :data:`MIN_GAIN` (held-out RMS of the noise-normalised errors) *and* by more than the
+data's noise can produce (:func:`battlab.diagnose.held_out.improvement_z` ≥ :data:`Z_MIN`), and beats every other
+cause's fit the same way; causes whose fits the data cannot tell apart are a pair, with the experiment that
+separates them. When the base refit is the baseline and explains the residual, the cause whose own fit does as well
+is named ("refit these": its base parameters). Fits that predict the held-out part worse than no fit are said.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from battlab import parameters
+from battlab import causes, parameters
 from battlab.cell import Cell
 from battlab.diagnose import testability
-from battlab.diagnose.data import V_MARGIN, Part, held_out_rmse
-from battlab.diagnose.report import Confirmation
+from battlab.diagnose.confirmation import Confirmation
+from battlab.diagnose.data import V_MARGIN, Part
+from battlab.diagnose.held_out import HeldOut, held_out, improvement_z
 from battlab.identify.experiments import Experiment
 from battlab.threads import thread_map
 from protocols.errors import InputError
 
-#: passing causes whose extension is fitted and checked on held-out data
+#: passing causes whose mechanism is fitted and checked on held-out data
 CONFIRM = 4
 #: at most this many causes fitted (the leading ones and those indistinguishable from them)
 MAX_CONFIRM = 5
-#: base parameters fitted beside an extension (and alone, for the base model's fair comparison)
+#: base parameters of the cause-blind base refit
 N_BASE = 3
-#: relative held-out RMSE gain an extension must show to be named
+#: relative held-out gain (RMS of noise-normalised errors) a cause's fit must show over the baseline to be named
 MIN_GAIN = 0.3
-#: relative held-out RMSE gain of a passing cause's fitted extension below which its passing is taken as chance
+#: ... and by this many standard errors of the paired block test (calibrated on null cases made by PyBaMM)
+Z_MIN = 4.0
+#: two causes' fits within this relative held-out difference (RMS of noise-normalised errors) are a pair
+TIE = 0.1
+#: relative held-out gain of a passing cause's fit below which its passing is taken as chance
 SOME_GAIN = 0.02
-#: the mean squared residual over the data's own noise variance (:func:`residuals.measured_noise_variance`) above
-#: this with no cause named: say whether a refit of the base parameters would explain it
+#: the mean squared residual over the data's own noise variance above this with no cause named: the verdict says
+#: plainly that the model misses the data
 S2_REFIT = 10.0
-#: a cause whose direction keeps less than this share after the base directions are projected out is one the base
-#: parameters mimic on these data
+#: a cause whose direction keeps less than this share after the others' base directions are projected out is one
+#: the other causes' base parameters mimic on these data
 MIMICKED = 0.05
-
-
-def confirm(
-    cell: Cell,
-    causes: Sequence[str | None],
-    base_names: Sequence[str],
-    train: Sequence[Experiment],
-    parts: Sequence[Part],
-    max_iter: int,
-) -> list[Confirmation]:
-    """Per cause (None: the base model alone): fit ``base_names`` and the cause's extension parameters on
-    ``train``, and the held-out RMSE. The models are built one after the other, their fits then run side by side."""
-    from battlab.identify.fit import Options, fit
-    from battlab.identify.forward import ForwardModel
-
-    models = [cell if c is None else cell.with_extension(c) for c in causes]
-    fms = [ForwardModel(m, v_margin=V_MARGIN) for m in models]
-    compiled = all(fm.thread_safe for fm in fms)
-
-    def one(k: int) -> Confirmation:
-        cause, model, fm = causes[k], models[k], fms[k]
-        names = tuple(base_names) + (() if cause is None else tuple(p.qualified for p in parameters.EXTENSIONS[cause]))
-        res = fit(model, list(train), names, options=Options(max_nfev=max_iter), forward=fm)
-        rmse_train = float(np.sqrt(np.mean([v**2 for v in res.rmse_mV.values()]))) if res.rmse_mV else float("nan")
-        return Confirmation(
-            cause or "base",
-            names,
-            {n: float(res.cell.value(n)) for n in names},
-            rmse_train,
-            held_out_rmse(fm, res.cell, parts),
-            bool(res.convergence.converged),
-        )
-
-    return thread_map(one, range(len(causes)), None if compiled else 1)
-
-
-def named(base_fit: Confirmation, confirmations: Sequence[Confirmation]) -> str | None:
-    """The cause whose fitted extension predicts the held-out data best, if it beats the base fit by
-    :data:`MIN_GAIN` (else None)."""
-    winners = [c for c in confirmations if c.rmse_held_out_mV <= (1.0 - MIN_GAIN) * base_fit.rmse_held_out_mV]
-    return min(winners, key=lambda c: c.rmse_held_out_mV).cause if winners else None
-
-
-def candidates(passing: Sequence[Any], twins: Sequence[tuple[str, str, float]]) -> list[Any]:
-    """The causes to fit: the leading :data:`CONFIRM` passing ones, and any passing cause the data cannot tell
-    apart from one of them (their scores rank such twins by chance), at most :data:`MAX_CONFIRM`."""
-    lead = list(passing[:CONFIRM])
-    names = {s.cause for s in lead}
-    alike = {b if a in names else a for a, b, _ in twins if (a in names) != (b in names)}
-    lead += [s for s in passing[CONFIRM:] if s.cause in alike]
-    return lead[:MAX_CONFIRM]
-
-
 #: a base parameter the cell holds up to this far outside its search range (normalised θ̄) is still refitted (from
 #: the bound); farther out it is left at the cell's value
 RANGE_SLACK = 0.2
 
 
+def fittable(cell: Cell, name: str) -> bool:
+    """Whether ``cell`` holds the base parameter inside its search range (or within :data:`RANGE_SLACK` of it,
+    normalised: a BPX cell's film resistances of 0 start at their small lower bounds) and can take any value in it:
+    one held far outside it (a BPX cell's transference number beside the built-in ranges) would start its fit
+    clipped to a bound, worse than the cell; one whose range holds impossible cells (a BPX cell's eps_e_n up to 0.45
+    beside its eps_s_n 0.69) would stop the fit that tries them."""
+    if not -RANGE_SLACK <= cell.normalised(name) <= 1.0 + RANGE_SLACK:
+        return False
+    try:
+        cell.with_normalised(**{name: 0.0}).with_normalised(**{name: 1.0})
+    except InputError:
+        return False
+    return True
+
+
 def refit_names(cell: Cell, J: np.ndarray, r: np.ndarray, w: np.ndarray, names: Sequence[str]) -> tuple[str, ...]:
     """The :data:`N_BASE` base parameters whose directions explain most of the residual ``r`` (|cos|, W), among
-    those ``cell`` holds inside their search range (or within :data:`RANGE_SLACK` of it, normalised: a BPX cell's
-    film resistances of 0 start at their small lower bounds) and can take anywhere in it: one held far outside it
-    (a BPX cell's transference number or kinetics beside the built-in ranges) would start its fit clipped to a
-    bound, worse than the cell, and the extensions would then be compared against that damage instead of against
-    the cell; one whose range holds impossible cells (a BPX cell's eps_e_n up to 0.45 beside its eps_s_n 0.69)
-    would stop the fit that tries them."""
+    those ``cell`` can refit (:func:`fittable`)."""
     Jw = J * np.sqrt(w)[:, None]
     norm = np.sqrt(np.sum(Jw**2, axis=0))
     relevance = np.abs(Jw.T @ (r * np.sqrt(w))) / np.where(norm > 0, norm, np.inf)
-
-    def fittable(name: str) -> bool:
-        if not -RANGE_SLACK <= cell.normalised(name) <= 1.0 + RANGE_SLACK:
-            return False
-        try:
-            cell.with_normalised(**{name: 0.0}).with_normalised(**{name: 1.0})
-        except InputError:
-            return False
-        return True
-
-    inside = np.array([fittable(n) for n in names])
+    inside = np.array([fittable(cell, n) for n in names])
     order = [k for k in np.argsort(relevance)[::-1] if inside[k]]
     return tuple(names[k] for k in order[:N_BASE])
 
 
+def mechanism_names(cell: Cell, key: str, informed: Sequence[str]) -> tuple[str, ...]:
+    """What a cause's fit moves: its base parameters among the 18 that ``cell`` can refit, then its extension's
+    ``informed`` parameters (``KEY.NAME``)."""
+    c = causes.cause(key)
+    base = [n for n in parameters.NAMES if n in c.base and fittable(cell, n)]
+    return (*base, *informed)
+
+
+@dataclass
+class Candidate:
+    """One fit of the confirmation (``key`` a cause, or ``"base"``: the base refit) and its held-out errors."""
+
+    key: str
+    names: tuple[str, ...]
+    confirmation: Confirmation
+    held: HeldOut
+
+
+def confirm(
+    cell: Cell,
+    specs: Sequence[tuple[str, tuple[str, ...]]],
+    train: Sequence[Experiment],
+    parts: Sequence[Part],
+    max_iter: int,
+) -> list[Candidate]:
+    """Per (key, names): fit ``names`` on ``train`` (the cause's extension switched on for a cause that has one; the
+    voltage and the logged temperature) and score the fit on the held-out ``parts``. The models are built one after
+    the other, their fits then run side by side."""
+    from battlab.identify.fit import Options, fit
+    from battlab.identify.forward import ForwardModel
+
+    def model(key: str) -> Cell:
+        return cell.with_extension(key) if key != "base" and causes.cause(key).extension is not None else cell
+
+    models = [model(k) for k, _ in specs]
+    fms = [ForwardModel(m, v_margin=V_MARGIN) for m in models]
+    compiled = all(fm.thread_safe for fm in fms)
+
+    def one(k: int) -> Candidate:
+        key, names = specs[k]
+        res = fit(models[k], list(train), names, options=Options(max_nfev=max_iter, temperature=True), forward=fms[k])
+        rmse_train = float(np.sqrt(np.mean([v**2 for v in res.rmse_mV.values()]))) if res.rmse_mV else float("nan")
+        held = held_out(fms[k], res.cell, parts)
+        conf = Confirmation(
+            key,
+            names,
+            {n: float(res.cell.value(n)) for n in names},
+            rmse_train,
+            held.rmse_mV,
+            bool(res.convergence.converged),
+            held.metric,
+            held.rmse_K,
+        )
+        return Candidate(key, names, conf, held)
+
+    return thread_map(one, range(len(specs)), None if compiled else 1)
+
+
+@dataclass
+class Verdict:
+    """What the confirmation decided: the cause named (or None) and how (``"extension"``, ``"refit"``), the
+    baseline (``"cell"`` or ``"base refit"``) and its held-out errors, causes the data cannot tell apart, fits worse
+    than no fit."""
+
+    cause: str | None
+    how: str | None
+    baseline: str
+    base: HeldOut
+    chosen: Candidate | None
+    pairs: list[list[str]] = field(default_factory=list)
+    worse: list[str] = field(default_factory=list)
+    z: float = 0.0
+    #: causes in ``pairs`` these data cannot fit (their evidence is missing) though they pass their score test
+    untested: tuple[str, ...] = ()
+
+
+def withhold(v: Verdict, twins: Sequence[tuple[str, str, float]], untested: set[str]) -> Verdict:
+    """The verdict with its named cause withheld when a cause these data cannot fit (``untested``: passing its
+    score test ahead of the named cause, its evidence missing) is indistinguishable from it (``twins``): the fit of
+    the named cause may then stand in for the untested one (e.g. an OCV shift for a one-state hysteresis on a drive
+    that never rests after a charge), so the two are a pair, with the experiment that tests the untested one."""
+    if v.cause is None:
+        return v
+    alike = [b if a == v.cause else a for a, b, _ in twins if v.cause in (a, b)]
+    hidden = tuple(k for k in dict.fromkeys(alike) if k in untested)
+    if not hidden:
+        return v
+    return replace(v, cause=None, pairs=[[v.cause, *hidden]], untested=hidden)
+
+
+def _beats(a: HeldOut, b: HeldOut, block_s: float, gain: float = MIN_GAIN) -> bool:
+    """Whether ``b`` predicts better than ``a`` by ``gain`` and by more than noise (:data:`Z_MIN`)."""
+    return b.metric <= (1.0 - gain) * a.metric and improvement_z(a, b, block_s) >= Z_MIN
+
+
+def decide(cell: HeldOut, base_fit: Candidate | None, fits: Sequence[Candidate], block_s: float) -> Verdict:
+    """The decision of the module docstring."""
+    baseline, base = "cell", cell
+    if base_fit is not None and base_fit.held.metric < cell.metric:
+        baseline, base = "base refit", base_fit.held
+    worse = [f.key for f in fits if f.held.metric > cell.metric]
+    winners = sorted((f for f in fits if _beats(base, f.held, block_s)), key=lambda f: f.held.metric)
+    if winners:
+        best = winners[0]
+        ties = [f.key for f in winners[1:] if f.held.metric <= (1.0 + TIE) * best.held.metric]
+        z = improvement_z(base, best.held, block_s)
+        if ties:
+            return Verdict(None, None, baseline, base, best, [[best.key, *ties]], worse, z)
+        return Verdict(best.key, "extension", baseline, base, best, [], worse, z)
+    if baseline == "base refit" and base_fit is not None and _beats(cell, base_fit.held, block_s):
+        alike = sorted(
+            (f for f in fits if f.held.metric <= (1.0 + TIE) * base_fit.held.metric), key=lambda f: f.held.metric
+        )
+        z = improvement_z(cell, base_fit.held, block_s)
+        if len(alike) == 1:
+            return Verdict(alike[0].key, "refit", "cell", cell, alike[0], [], worse, z)
+        if len(alike) > 1:
+            return Verdict(None, "refit", "cell", cell, alike[0], [[f.key for f in alike]], worse, z)
+    return Verdict(None, None, baseline, base, None, [], worse)
+
+
+#: a cause whose own directions take up at least this share of the largest share is fitted (when the base
+#: directions explain the residual beyond the noise)
+SHARE_OF_BEST = 0.5
+
+
+def candidates(
+    passing: Sequence[Any], twins: Sequence[tuple[str, str, float]], share: dict[str, float] | None = None
+) -> list[str]:
+    """The causes to fit: the leading :data:`CONFIRM` passing extensions; when the base directions explain the
+    residual (``share`` given), the causes whose own directions take up most of it (at least
+    :data:`SHARE_OF_BEST` of the largest share); and any cause the data cannot tell apart from one of those (score
+    directions alike, or an extension inside another cause's own directions: it need not pass, the other's
+    parameters take up its effect); at most :data:`MAX_CONFIRM`."""
+    lead = [s.cause for s in passing[:CONFIRM]]
+    if share:
+        best = max(share.values())
+        lead += [
+            k for k, v in sorted(share.items(), key=lambda kv: -kv[1]) if v >= SHARE_OF_BEST * best and k not in lead
+        ]
+        lead = lead[:CONFIRM]
+    alike = [b if a in lead else a for a, b, _ in twins if (a in lead) != (b in lead)]
+    return [*lead, *(k for k in dict.fromkeys(alike) if k not in lead)][:MAX_CONFIRM]
+
+
 def mimicked_by(J: np.ndarray, S: np.ndarray, w: np.ndarray, names: Sequence[str], n: int = 2) -> list[str]:
-    """The ``n`` base parameters whose directions are most nearly parallel to the extension's first (|cos|, W)."""
+    """The ``n`` base parameters whose directions are most nearly parallel to the cause's first direction."""
     sw = np.sqrt(w)
     a = S[:, 0] * sw
     Jw = J * sw[:, None]
@@ -129,34 +240,75 @@ def mimicked_by(J: np.ndarray, S: np.ndarray, w: np.ndarray, names: Sequence[str
     return [names[k] for k in np.argsort(cos)[::-1][:n] if cos[k] > 0]
 
 
-def cannot_tell(
-    cause: str | None,
-    confirmations: Sequence[Confirmation],
-    base_rmse: float,
-    ranked: Sequence[Any],
-    mimics: dict[str, list[str]],
-    s2: float | None,
-    base_share: float,
-) -> list[dict[str, Any]]:
-    """The causes these data cannot decide on, each with why and the experiment (library profile kind) that would:
-    with no cause named, those that pass their score test and whose fitted extension wins on held-out data by
-    :data:`SOME_GAIN` to :data:`MIN_GAIN` (a smaller win: the pass was chance), and (when the residual is over
-    :data:`S2_REFIT` × the noise level and the base directions hold most of it) those the base parameters mimic
-    (under :data:`MIMICKED` of their direction left). Empty: the data decide (a cause named, or nothing beyond the
-    noise)."""
-    if cause is None:
-        out = {
-            c.cause: f"passes its score test, and its fitted extension lowers the held-out RMSE by "
-            f"{100 * (1 - c.rmse_held_out_mV / base_rmse):.0f} %, less than the {100 * MIN_GAIN:.0f} % that names it"
-            for c in confirmations
-            if c.rmse_held_out_mV <= (1.0 - SOME_GAIN) * base_rmse
-        }
-        if s2 is not None and s2 > S2_REFIT and base_share > 0.5:
-            for s in ranked:
-                if s.projected_norm < MIMICKED and s.cause not in out:
-                    out[s.cause] = (
-                        f"its effect on these data lies along the base parameters' ({', '.join(mimics[s.cause])})"
-                    )
-    else:
-        out = {}
-    return [testability.cause_entry(c, w) for c, w in out.items()]
+def separating_experiment(keys: Sequence[str]) -> tuple[str, str]:
+    """(library profile kind, the experiment) that tells the causes ``keys`` apart: what one of them declares for
+    another (:attr:`battlab.causes.cause.Cause.separates`), else each one's own evidence."""
+    cs = [causes.cause(k) for k in keys]
+    for a in cs:
+        for b in cs:
+            if b.key in a.separates:
+                return a.informed_by.kind, a.separates[b.key]
+    return cs[0].informed_by.kind, "; ".join(f"{c.key}: {c.informed_by.experiment}" for c in cs)
+
+
+def cannot_tell(v: Verdict, fits: Sequence[Candidate]) -> list[dict[str, Any]]:
+    """The causes these data cannot decide between: each pair (or group) whose fits predict the held-out part
+    alike, with why and the experiment that separates them; and, with no cause named, passing causes whose fit wins
+    by :data:`SOME_GAIN` to :data:`MIN_GAIN` (a smaller win: the pass was chance)."""
+    out: list[dict[str, Any]] = []
+    for group in v.pairs:
+        kind, experiment = separating_experiment(v.untested or group)
+        fitted = [k for k in group if k not in v.untested]
+        why = (
+            f"their fits predict the held-out data alike ({', '.join(group)})"
+            if not v.untested
+            else f"{', '.join(v.untested)} passes its score test alike with {', '.join(fitted)}, and these data "
+            "cannot fit it"
+        )
+        out.append(
+            {
+                "causes": list(group),
+                "cause": group[0],
+                "why": why,
+                "kind": kind,
+                "experiment": experiment,
+            }
+        )
+    if v.cause is None and not v.pairs:
+        for f in fits:
+            gain = 1.0 - f.held.metric / v.base.metric
+            if SOME_GAIN <= gain < MIN_GAIN or (gain >= MIN_GAIN and f.key != "base"):
+                e = testability.cause_entry(
+                    f.key,
+                    f"passes its score test, and its fit lowers the held-out error by {100 * gain:.0f} %, "
+                    f"short of the {100 * MIN_GAIN:.0f} % and the noise margin that name it",
+                )
+                out.append({"causes": [f.key], **e})
+    return out
+
+
+__all__ = [
+    "CONFIRM",
+    "MAX_CONFIRM",
+    "MIMICKED",
+    "MIN_GAIN",
+    "N_BASE",
+    "RANGE_SLACK",
+    "S2_REFIT",
+    "SHARE_OF_BEST",
+    "SOME_GAIN",
+    "TIE",
+    "Z_MIN",
+    "Candidate",
+    "Verdict",
+    "cannot_tell",
+    "candidates",
+    "confirm",
+    "decide",
+    "fittable",
+    "mechanism_names",
+    "mimicked_by",
+    "refit_names",
+    "separating_experiment",
+    "withhold",
+]

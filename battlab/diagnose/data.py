@@ -54,7 +54,10 @@ class Part:
         k = self.train
         prof = Profile(e.profile.t[:k], e.profile.current[:k], id=e.name, soc0=e.soc0)
         var = np.broadcast_to(np.asarray(e.variance, float), (self.n,))[:k]
-        return Experiment(e.name, prof, e.voltage[:k], e.soc0, var, e.ambient, e.T0)
+        T = None if e.temperature is None else e.temperature[:k]
+        return Experiment(
+            e.name, prof, e.voltage[:k], e.soc0, var, e.ambient, e.T0, temperature=T, t_variance=e.t_variance
+        )
 
 
 def split(data_parts: list[tuple[str, list[Experiment]]], held_out: str | None) -> tuple[list[Part], str]:
@@ -164,17 +167,3 @@ def prepare(
 
 def simulate_on(fm: Any, e: Experiment, names: Sequence[str] = ()) -> Any:
     return fm.run(fm.theta_of(fm.cell), e.profile, e.soc0, ambient=e.ambient, T0=e.T0, sensitivities=names)
-
-
-def held_out_rmse(fm: Any, cell: Cell, parts: Sequence[Part]) -> float:
-    """RMSE [mV] of ``cell`` on the held-out samples (each experiment simulated from its start), NaN-free part."""
-    from battlab.identify.validation import predict
-
-    err = []
-    for p in parts:
-        if p.train < p.n:
-            pred = predict(fm, cell, p.experiment)
-            e = pred[p.train :] - p.experiment.voltage[p.train :]
-            err.append(e[np.isfinite(e)])
-    e = np.concatenate(err) if err else np.zeros(0)
-    return float(1e3 * np.sqrt(np.mean(e**2))) if e.size else float("nan")

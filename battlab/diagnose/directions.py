@@ -21,8 +21,10 @@ from battlab.simulation import simulate
 from battlab.threads import thread_map
 from protocols.profile import Profile
 
-#: causes tested by default: every catalog extension whose voltage is differentiable at "off" (the double layer's is
-#: not at C_dl = 0: for any C_dl > 0 the right limit at a current step holds the overpotential)
+#: causes score-tested by default: every catalog extension whose voltage is differentiable at "off" (the double
+#: layer's is not at C_dl = 0: for any C_dl > 0 the right limit at a current step holds the overpotential); the
+#: causes' base parameters are weighed by how much of the residual they take up
+#: (:func:`battlab.diagnose.mechanisms.shares`)
 DEFAULT_CAUSES: tuple[str, ...] = tuple(c.key for c in causes.extended() if c.differentiable_at_off)
 
 #: per catalog cause: a typical size of its parameters' change from "off" (physical units, magnitude, as the causes
@@ -41,6 +43,7 @@ class Directions:
     S: np.ndarray
     names: tuple[str, ...]
     voltage: np.ndarray
+    S_T: np.ndarray | None = None  # the extension's dT_surface/dθ̄ (n_t × q) [K]
 
 
 def extension_directions(
@@ -62,7 +65,7 @@ def extension_directions(
     base = cell
     for key in list(cell.extensions):
         base = base.without_extension(key)
-    keys = [k for k in (causes or DEFAULT_CAUSES) if not (isothermal and CATALOG[k].requires_thermal)]
+    keys = [k for k in (causes or DEFAULT_CAUSES) if k in CATALOG and not (isothermal and CATALOG[k].requires_thermal)]
     models = {k: base.with_extension(k) for k in keys}
     # the models are built here, one after the other; their simulations then run side by side
     compiled = all(ForwardModel(m, isothermal=isothermal).thread_safe for m in models.values())
@@ -79,8 +82,8 @@ def extension_directions(
             T0=T0,
             v_limits=v_limits,
         )
-        sens = res.sensitivities
+        sens, sens_T = res.sensitivities, res.sensitivities_T
         p = len(base_names)
-        return Directions(key, sens[:, :p], sens[:, p:], names, res.voltage)
+        return Directions(key, sens[:, :p], sens[:, p:], names, res.voltage, None if sens_T is None else sens_T[:, p:])
 
     return thread_map(one, keys, None if compiled else 1)

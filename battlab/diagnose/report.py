@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from battlab.diagnose.confirmation import Confirmation
 from battlab.jsonable import json_default
 
 
@@ -41,16 +42,26 @@ def untestable_causes(summary: Mapping[str, Any]) -> set[str]:
     return {c["cause"] for c in summary.get("untestable", [])}
 
 
-@dataclass
-class Confirmation:
-    """One cause's held-out check: the fitted parameters and the RMSE [mV] on the held-out part."""
+#: the columns of :func:`rounds_table`
+ROUND_COLUMNS = ["round", "causes", "profile", "ambient [degC]", "expected chi2", "lab hours", "cause after"]
 
-    cause: str
-    names: tuple[str, ...]
-    values: dict[str, float]
-    rmse_train_mV: float
-    rmse_held_out_mV: float
-    converged: bool
+
+def rounds_table(rounds: list[dict[str, Any]]) -> tuple[list[str], list[list[Any]]]:
+    """The deciding experiments run (``summary["rounds"]``) as (columns, rows): the causes each round set apart,
+    its profile and ambient, the divergence it was expected to show (χ²), its lab hours and the cause named after."""
+    rows = [
+        [
+            r["round"],
+            " vs ".join(r["causes"]),
+            r["experiment"]["profile"],
+            r["experiment"]["ambient_degC"],
+            r["experiment"]["divergence"],
+            r["experiment"]["lab_hours"],
+            r.get("cause_after"),
+        ]
+        for r in rounds
+    ]
+    return ROUND_COLUMNS, rows
 
 
 @dataclass
@@ -98,7 +109,8 @@ class DiagnosisReport:
         lines.append(f"cause: {cause} ({s['verdict']})" if cause else f"cause: none ({s['verdict']})")
         lines.append(f"verdict: {headline(s)[0]}")
         for c in s.get("cannot_tell", []):
-            lines.append(f"cannot tell: {c['cause']}: {c['why']}; would tell: {c['kind']} profile, {c['experiment']}")
+            who = ", ".join(c.get("causes", [c["cause"]]))
+            lines.append(f"cannot tell: {who}: {c['why']}; would tell: {c['kind']} profile, {c['experiment']}")
         for c in s.get("untestable", []):
             lines.append(
                 f"not testable here: {c['cause']} ({c['why']}); would tell: {c['kind']} profile, {c['experiment']}"
@@ -107,6 +119,15 @@ class DiagnosisReport:
             lines.append(
                 f"too small to see: {c['cause']} ({c['why']}); would show: {c['kind']} profile, {c['experiment']}"
             )
+        for r in s.get("rounds", []):
+            x = r["experiment"]
+            lines.append(
+                f"deciding experiment {r['round']} ({' vs '.join(r['causes'])}): profile {x['profile']} at "
+                f"{x['ambient_degC']:.0f} degC, expected divergence chi2 {x['divergence']:.3g}, "
+                f"{x['lab_hours']:.1f} lab h" + (f" -> cause {r.get('cause_after')}" if "cause_after" in r else "")
+            )
+        if s.get("undecided"):
+            lines.append(f"undecided: {s['undecided']}")
         lines.append(f"({s['seconds']:.0f} s)")
         return "\n".join(lines)
 
@@ -175,7 +196,10 @@ class DiagnosisReport:
             ),
         ]
         undecided = [
-            html.Paragraph(f"{what}: {c['cause']} ({c['why']}); would tell: {c['kind']} profile, {c['experiment']}")
+            html.Paragraph(
+                f"{what}: {', '.join(c.get('causes', [c['cause']]))} ({c['why']}); would tell: {c['kind']} profile, "
+                f"{c['experiment']}"
+            )
             for key, what in (
                 ("cannot_tell", "cannot tell"),
                 ("untestable", "not testable here"),
@@ -185,6 +209,9 @@ class DiagnosisReport:
         ]
         if undecided:
             sections.insert(1, html.Section("What these data cannot tell", undecided))
+        if s.get("rounds"):
+            cols, rows_r = rounds_table(s["rounds"])
+            sections.insert(1, html.Section("Deciding experiments", [html.Table(cols, rows_r)]))
         if self.warnings:
             sections.append(html.Section("Warnings", [html.Paragraph(w) for w in self.warnings]))
         return html.write(out / "report.html", f"Diagnosis of {self.cell_name}", sections, subtitle=verdict)

@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from battlab import parameters
+from battlab import causes, parameters
 from battlab.cell import Cell
 from battlab.diagnose import testability
 from battlab.diagnose.confirm import (
@@ -43,13 +43,13 @@ from battlab.diagnose.confirm import (
     RANGE_SLACK,
     S2_REFIT,
     SOME_GAIN,
+    Z_MIN,
     candidates,
-    cannot_tell,
     confirm,
     mimicked_by,
-    named,
     refit_names,
 )
+from battlab.diagnose.confirmation import Confirmation
 from battlab.diagnose.data import (
     CAPACITY_FACTOR,
     HELD_OUT_FRACTION,
@@ -57,12 +57,11 @@ from battlab.diagnose.data import (
     V_MARGIN,
     Part,
     Prepared,
-    held_out_rmse,
     prepare,
     simulate_on,
     split,
 )
-from battlab.diagnose.report import Confirmation, DiagnosisReport
+from battlab.diagnose.report import DiagnosisReport
 from battlab.identify.data_files import Ambient
 from battlab.progress import Reporter, Subscriber
 from protocols.errors import InputError
@@ -83,6 +82,7 @@ __all__ = [
     "S2_REFIT",
     "SOME_GAIN",
     "V_MARGIN",
+    "Z_MIN",
     "Confirmation",
     "DiagnoseOptions",
     "Part",
@@ -93,6 +93,9 @@ __all__ = [
 
 #: family-wise false-alarm rate of the ranking (Bonferroni over the causes tested)
 ALPHA = 0.01
+#: the training residual's mean square over the noise above this (and mostly along the base directions): the causes
+#: whose own directions take it up are fitted
+S2_BASE = 2.0
 #: contiguous blocks of the batch-means variance: about this many over the training part, each at least BLOCK_MIN_S
 N_BLOCKS = 30
 BLOCK_MIN_S = 60.0
@@ -153,13 +156,13 @@ class Residuals:
 
 @dataclass
 class Scores:
-    """The score tests on the training part: residual r (projected off the base directions) and r_raw, base
-    Jacobian J, weights w, time t, each cause's directions, the ranking and what passes, detectable sizes."""
+    """The score tests on the training part: the stacked channels (:class:`battlab.diagnose.mechanisms.Channels`,
+    residual at the cell as given), the residual with all 18 base directions projected out, the share the base
+    directions take, block length, detectable sizes, the ranking and what passes, the pairs the data cannot tell
+    apart, the base parameters that mimic each cause, the threshold."""
 
-    r: np.ndarray
-    r_raw: np.ndarray
-    J: np.ndarray
-    w: np.ndarray
+    ch: Any
+    r_projected: np.ndarray
     base_share: float
     block_s: float
     sizes: dict[str, dict[str, float]]
@@ -168,6 +171,8 @@ class Scores:
     twins: list[tuple[str, str, float]]
     mimics: dict[str, list[str]]
     p_threshold: float
+    base_passes: bool = False  # the 18 base directions together explain the residual beyond its noise
+    share: dict[str, float] = field(default_factory=dict)  # per cause: share of the residual along its own directions
 
 
 def residual_step(prep: Prepared, fm: Any) -> Residuals:
@@ -204,16 +209,18 @@ def residual_step(prep: Prepared, fm: Any) -> Residuals:
     return Residuals(tt, rr, ii, ss, vv, analysis)
 
 
-def _training_columns(prep: Prepared, fm: Any, keys: Sequence[str], say: Reporter) -> tuple[list[np.ndarray], ...]:
-    """Per training experiment: residual, base Jacobian, time, weights, and each cause's directions (in ``keys``
-    order, dict per experiment), all cut to the shortest simulation."""
+def _training_channels(prep: Prepared, fm: Any, keys: Sequence[str], say: Reporter) -> Any:
+    """The training rows of every channel stacked (:class:`battlab.diagnose.mechanisms.Channels`): per training
+    experiment its voltage rows, then its surface temperature's where logged, cut to the shortest simulation."""
     from battlab.diagnose.directions import extension_directions
+    from battlab.diagnose.mechanisms import Channels
 
     lim = (float(prep.base["V_min"]) - V_MARGIN, float(prep.base["V_max"]) + V_MARGIN)
-    r_all, J_all, t_all, w_all, S_all = [], [], [], [], []
+    rows: dict[str, list[np.ndarray]] = {"r": [], "J": [], "w": [], "t": [], "T": []}
+    S_rows: dict[str, list[np.ndarray]] = {}
     offset = 0.0
     for e in prep.train:
-        say("note", text=f"extension directions on {e.name}")
+        say("note", text=f"directions on {e.name}")
         b = simulate_on(fm, e, parameters.NAMES)
         dirs = {
             d.cause: d
@@ -222,162 +229,303 @@ def _training_columns(prep: Prepared, fm: Any, keys: Sequence[str], say: Reporte
             )
         }
         n = min([b.voltage.size, *(d.S.shape[0] for d in dirs.values())])
-        r_all.append(e.voltage[:n] - b.voltage[:n])
-        J_all.append(b.sensitivities[:n])
-        t = e.profile.t[:n]
-        t_all.append(t - t[0] + offset)
-        offset = float(t_all[-1][-1]) + 1.0
-        w_all.append(1.0 / np.broadcast_to(np.asarray(e.variance, float), (e.voltage.size,))[:n])
-        S_all.append({k: d.S[:n] for k, d in dirs.items()})
-    return r_all, J_all, t_all, w_all, S_all
+        t = e.profile.t[:n] - e.profile.t[0] + offset
+        offset = float(t[-1]) + 1.0
+        use_T = e.has_temperature and b.T_surface is not None and b.dT is not None
+        blocks = [(e.voltage[:n] - b.voltage[:n], b.sensitivities[:n], 1.0 / np.asarray(e.variance, float)[:n], False)]
+        if use_T:
+            assert e.temperature is not None
+            ok = np.isfinite(e.temperature[:n])
+            blocks.append(
+                (
+                    np.where(ok, e.temperature[:n] - b.T_surface[:n], 0.0),
+                    b.dT[:n],
+                    np.where(ok, 1.0 / e.t_variance, 0.0),
+                    True,
+                )
+            )
+        for r, J, w, is_T in blocks:
+            rows["r"].append(r)
+            rows["J"].append(J)
+            rows["w"].append(np.broadcast_to(w, r.shape))
+            rows["t"].append(t)
+            rows["T"].append(np.full(r.size, is_T))
+            for k, d in dirs.items():
+                S = d.S_T if is_T else d.S
+                S_rows.setdefault(k, []).append(np.zeros((n, d.S.shape[1])) if S is None else S[:n])
+    cat = {k: np.concatenate(v) for k, v in rows.items()}
+    S = {k: np.concatenate(v) for k, v in S_rows.items() if len(v) == len(rows["r"])}
+    return Channels(cat["r"], cat["J"], S, cat["w"], cat["t"], cat["T"].astype(bool))
 
 
 def score_step(prep: Prepared, fm: Any, o: DiagnoseOptions, say: Reporter) -> Scores:
-    """Score every cause on the training part (see the module docstring, item 3)."""
+    """Screen the causes on the training part (see the module docstring, item 3): each extension's score test
+    beyond every base direction; each cause's share of the residual along its own directions (base parameters and
+    extension); which causes mimic each other on these data."""
     from battlab.diagnose import score
     from battlab.diagnose.directions import DEFAULT_CAUSES
+    from battlab.diagnose.mechanisms import mimics as mimic_pairs
+    from battlab.diagnose.mechanisms import shares
 
     keys = tuple(o.causes or DEFAULT_CAUSES)
-    r_all, J_all, t_all, w_all, S_all = _training_columns(prep, fm, keys, say)
-    r, J, t, w = (np.concatenate(x) for x in (r_all, J_all, t_all, w_all))
+    ch = _training_channels(prep, fm, keys, say)
+    r, J, w, t = ch.r, ch.J, ch.w, ch.t
     # the base model at its linearised best fit: what the 18 base parameters can absorb is taken out of the
-    # residual (the score tests assume a fitted base, Jᵀ W r ≈ 0; the score itself is unchanged by this)
-    r_raw, r = r, score.project_out(J, r[:, None], w)[:, 0]
-    cost_raw = float(np.sum(w * r_raw**2))
-    base_share = 1.0 - float(np.sum(w * r**2)) / cost_raw if cost_raw > 0 else 0.0
-    block_s = max(BLOCK_MIN_S, float(t[-1] - t[0]) / N_BLOCKS)
-    tested = [k for k in keys if all(k in s for s in S_all)]
-    S_of = {k: np.concatenate([s[k] for s in S_all]) for k in tested}
-    mimics = {k: mimicked_by(J, S_of[k], w, parameters.NAMES) for k in tested}
-    p_threshold = o.alpha / max(len(tested), 1)
-    sizes = {k: testability.detectable_sizes(k, r, J, S_of[k], w, t, p_threshold, block_s) for k in tested}
-    results = [
-        score.score_test(k, r, J, S_of[k][:, testability.informed_columns(k, sizes[k])], w, t, block_s=block_s)
-        for k in tested
-    ]
+    # residual (an extension's score test asks what it explains beyond them)
+    rp = score.project_out(J, r[:, None], w)[:, 0]
+    cost_raw = float(np.sum(w * r**2))
+    base_share = 1.0 - float(np.sum(w * rp**2)) / cost_raw if cost_raw > 0 else 0.0
+    block_s = max(BLOCK_MIN_S, float(t.max() - t.min()) / N_BLOCKS)
+    tested = [k for k in keys if k in ch.S]
+    p_threshold = o.alpha / max(len(tested) + 1, 1)  # the extensions and the base directions together
+    sizes = {k: testability.detectable_sizes(k, rp, J, ch.S[k], w, t, p_threshold, block_s) for k in tested}
+    for k in tested:  # each extension on the columns the data would detect somewhere in their range
+        ch.S[k] = ch.S[k][:, testability.informed_columns(k, sizes[k])]
+    mimics = {k: mimicked_by(J, ch.S[k], w, parameters.NAMES) for k in tested}
+    results = [score.score_test(k, rp, J, ch.S[k], w, t, block_s=block_s) for k in tested]
     ranked = score.rank_causes(results)
     passing = [s for s in ranked if s.dof > 0 and s.p_value < p_threshold]
-    twins = score.indistinguishable(ranked, w)
-    return Scores(r, r_raw, J, w, base_share, block_s, sizes, ranked, passing, twins, mimics, p_threshold)
+    # the base directions take up the residual beyond the noise: the causes whose own directions take most of it
+    # are fitted (a joint score test of 18 directions over ~30 blocks has too little power to screen)
+    s2 = float(np.sum(w * r**2) / max(r.size, 1))
+    base_passes = s2 > S2_BASE and base_share > 0.5
+    everyone = [c.key for c in causes.CAUSES if c.key in ch.S or (not c.parameters and c.base)]
+    twins = score.indistinguishable(ranked, w) + [tw for tw in mimic_pairs(ch, everyone) if tw[1] in tested]
+    return Scores(
+        ch,
+        rp,
+        base_share,
+        block_s,
+        sizes,
+        ranked,
+        passing,
+        twins,
+        mimics,
+        p_threshold,
+        base_passes,
+        shares(ch, everyone),
+    )
 
 
 @dataclass
 class Decision:
-    """What the held-out confirmation decided: the cause (or None), the base fit and the confirmations, the
-    extension gain and the verdict so far."""
+    """What the held-out confirmation decided (:class:`battlab.diagnose.confirm.Verdict`), with the cell's own
+    held-out errors, the base refit's and the causes' fits."""
 
-    cause: str | None
-    base_fit: Confirmation | None
-    confirmations: list[Confirmation]
+    verdict: Any
+    cell: Any
+    base_fit: Any
+    fits: list[Any]
     relevant: tuple[str, ...]
-    gain: dict[str, Any]
-    verdict: str
+
+    @property
+    def cause(self) -> str | None:
+        return self.verdict.cause
+
+    @property
+    def confirmations(self) -> list[Confirmation]:
+        return [f.confirmation for f in self.fits]
+
+
+def _informed(key: str, sc: Scores, prep: Prepared) -> tuple[str, ...]:
+    """The extension parameters of ``key`` its score test ran on (``KEY.NAME``), less those its cause declares the
+    training data cannot inform (a temperature coefficient at one ambient: a fit of it extrapolates to nonsense)."""
+    c = causes.cause(key)
+    if not c.parameters or key not in sc.sizes:
+        return ()
+    names = [c.parameters[j].qualified for j in testability.informed_columns(key, sc.sizes[key])]
+    bad = c.not_informed(names, prep.train, 0.01 * float(prep.base["Q_nom"]))
+    return tuple(n for n in names if n not in bad)
 
 
 def decide_step(prep: Prepared, fm: Any, sc: Scores, o: DiagnoseOptions, say: Reporter) -> Decision:
-    """Fit the leading passing causes and the base model on the training part; name the cause that wins on the
-    held-out part by :data:`MIN_GAIN`."""
-    start_rmse = held_out_rmse(fm, prep.base, prep.parts)
-    relevant = refit_names(prep.base, sc.J, sc.r_raw, sc.w, parameters.NAMES)
-    if not sc.passing:
-        gain = {
-            "rmse_before_mV": start_rmse,
-            "rmse_after_mV": None,
-            "held_out": prep.held_name,
-            "rmse_cell_mV": start_rmse,
-        }
-        return Decision(None, None, [], relevant, gain, "no cause passes its score test")
-    cands = [s.cause for s in candidates(sc.passing, sc.twins)]
-    also_with = f" and with {', '.join(cands)}" if cands else ""
-    say("note", text=f"fitting the base model's {', '.join(relevant)}{also_with} on the training part")
-    base_fit, *confirmations = confirm(prep.base, [None, *cands], relevant, prep.train, prep.parts, o.max_iter)
-    cause = named(base_fit, confirmations)
-    best = min(confirmations, key=lambda c: c.rmse_held_out_mV)
-    chosen = next(c for c in confirmations if c.cause == cause) if cause else best
-    gain = {
-        "rmse_before_mV": base_fit.rmse_held_out_mV,
-        "rmse_after_mV": chosen.rmse_held_out_mV,
-        "held_out": prep.held_name,
-        "cause_fitted": chosen.cause,
-        "rmse_cell_mV": start_rmse,
-    }
-    verdict = (
-        f"{cause} passes its score test and its fitted extension lowers the held-out RMSE "
-        f"{base_fit.rmse_held_out_mV:.2f} → {chosen.rmse_held_out_mV:.2f} mV"
-        if cause
-        else f"score tests passed ({', '.join(s.cause for s in sc.passing)}) but no fitted extension lowered the "
-        f"held-out RMSE by {100 * MIN_GAIN:.0f} % against the same base fit"
+    """Fit the base refit and the leading passing causes on the training part; decide on the held-out part
+    (:func:`battlab.diagnose.confirm.decide`)."""
+    from battlab.diagnose.confirm import decide, mechanism_names, withhold
+    from battlab.diagnose.held_out import held_out
+
+    cell_held = held_out(fm, prep.base, prep.parts)
+    relevant = refit_names(prep.base, sc.ch.J, sc.ch.r, sc.ch.w, parameters.NAMES)
+    keys = candidates(sc.passing, sc.twins, sc.share if sc.base_passes else {})
+    if not keys:
+        from battlab.diagnose.confirm import Verdict
+
+        return Decision(Verdict(None, None, "cell", cell_held, None), cell_held, None, [], relevant)
+    specs = [("base", relevant)] + [
+        (k, names) for k in keys if (names := mechanism_names(prep.base, k, _informed(k, sc, prep)))
+    ]
+    say(
+        "note",
+        text=f"fitting the base refit ({', '.join(relevant)}) and {', '.join(k for k, _ in specs[1:])} on the "
+        "training part",
     )
-    return Decision(cause, base_fit, confirmations, relevant, gain, verdict)
+    base_fit, *fits = confirm(prep.base, specs, prep.train, prep.parts, o.max_iter)
+    i_rest = 0.01 * float(prep.base["Q_nom"])
+    verdict = decide(cell_held, base_fit, fits, sc.block_s)
+    # a cause these data cannot fit that scores above the named one on the training part (smaller p) may be what the
+    # named cause's fit stands in for
+    p = {s.cause: s.p_value for s in sc.passing}
+    cannot_fit = {e["cause"] for e in testability.untestable(prep.train, None, i_rest)}
+    untested = {k for k in cannot_fit & p.keys() if p[k] < p.get(verdict.cause or "", 1.0)}
+    verdict = withhold(verdict, sc.twins, untested)
+    return Decision(verdict, cell_held, base_fit, fits, relevant)
 
 
-def also_fit_step(prep: Prepared, d: Decision, o: DiagnoseOptions, say: Reporter) -> list[dict[str, Any]]:
+def also_fit_step(prep: Prepared, d: Decision, sc: Scores, o: DiagnoseOptions, say: Reporter) -> list[dict[str, Any]]:
     """The ``also_fit`` causes fitted on the same terms as a confirmation (reported, not decided on)."""
-    done: dict[str | None, Confirmation] = {c.cause: c for c in d.confirmations}
+    from battlab.diagnose.confirm import mechanism_names
+
+    done = {f.key: f for f in d.fits}
     if d.base_fit is not None:
-        done[None] = d.base_fit
-    todo = [k for k in dict.fromkeys((None, *o.also_fit)) if k not in done]
+        done["base"] = d.base_fit
+    todo = [k for k in dict.fromkeys(("base", *o.also_fit)) if k not in done]
     if todo:
-        say("note", text=f"fitting {', '.join(k or 'the base model' for k in todo)} on the training part (also_fit)")
-        done.update(zip(todo, confirm(prep.base, todo, d.relevant, prep.train, prep.parts, o.max_iter), strict=True))
-    ref = done[None]
+        say("note", text=f"fitting {', '.join(todo)} on the training part (also_fit)")
+        i_rest = 0.01 * float(prep.base["Q_nom"])
+
+        def informed(k: str) -> tuple[str, ...]:
+            c = causes.cause(k)
+            bad = c.not_informed(c.qualified_names, prep.train, i_rest)
+            return tuple(n for n in c.qualified_names if n not in bad)
+
+        specs = [(k, d.relevant if k == "base" else mechanism_names(prep.base, k, informed(k))) for k in todo]
+        done.update({c.key: c for c in confirm(prep.base, specs, prep.train, prep.parts, o.max_iter)})
+    ref = d.verdict.base if d.verdict.base is not None else done["base"].held
     return [
         {
-            **done[k].__dict__,
-            "rmse_base_mV": ref.rmse_held_out_mV,
-            "gain": 1.0 - done[k].rmse_held_out_mV / ref.rmse_held_out_mV,
+            **done[k].confirmation.__dict__,
+            "rmse_base_mV": ref.rmse_mV,
+            "gain": 1.0 - done[k].held.metric / ref.metric,
         }
         for k in o.also_fit
     ]
 
 
+def _verdict_text(d: Decision, sc: Scores, s2: float, res: Residuals) -> str:
+    """The answer in words a bench engineer reads first (never "no discrepancy" at s² ≫ 1)."""
+    from battlab.diagnose.mechanisms import share_text
+
+    v = d.verdict
+    rmse = float(1e3 * np.sqrt(np.mean(res.r[np.isfinite(res.r)] ** 2)))
+    if v.cause is not None and v.chosen is not None:
+        names = ", ".join(v.chosen.names)
+        if v.how == "refit":
+            return (
+                f"{v.cause}: a refit of its parameters ({names}) predicts the held-out data "
+                f"{v.base.rmse_mV:.2f} → {v.chosen.held.rmse_mV:.2f} mV: refit them (battlab fit)"
+            )
+        return (
+            f"{v.cause}: its fit ({names}) predicts the held-out data {v.base.rmse_mV:.2f} → "
+            f"{v.chosen.held.rmse_mV:.2f} mV, better than the {v.baseline} by "
+            f"{100 * (1 - v.chosen.held.metric / v.base.metric):.0f} % ({v.z:.1f} standard errors)"
+        )
+    if v.pairs:
+        from battlab.diagnose.confirm import separating_experiment
+
+        best = v.chosen.held.rmse_mV if v.chosen is not None else float("nan")
+        fixes = [
+            f"refit {k}'s parameters" if v.how == "refit" or causes.cause(k).extension is None else f"extend with {k}"
+            for k in v.pairs[0]
+        ]
+        _, experiment = separating_experiment(v.untested or v.pairs[0])
+        if v.untested:
+            return (
+                f"cannot tell {' from '.join(v.pairs[0])} on these data: {fixes[0]} predicts the held-out data "
+                f"{v.base.rmse_mV:.2f} → {best:.2f} mV, but {', '.join(v.untested)} passes its score test alike and "
+                f"these data cannot fit it; would tell: {experiment}"
+            )
+        return (
+            f"cannot tell {' from '.join(v.pairs[0])} on these data: their fits predict the held-out data alike "
+            f"({v.base.rmse_mV:.2f} → {best:.2f} mV), so {' or '.join(fixes)} explains it; would tell: {experiment}"
+        )
+    if s2 > S2_REFIT:
+        share = sc.share
+        return (
+            f"the model misses these data: residual {rmse:.1f} mV RMSE, {s2:.3g} × the noise level; no single cause "
+            f"explains it on held-out data; share of the residual along each cause's own directions: "
+            f"{share_text(share)}"
+        )
+    if sc.passing:
+        return (
+            f"score tests passed ({', '.join(s.cause for s in sc.passing)}) but no fit beat the {v.baseline} on the "
+            f"held-out data by {100 * MIN_GAIN:.0f} % and the noise margin"
+        )
+    return f"no discrepancy beyond the noise: residual {rmse:.2f} mV RMSE, {s2:.3g} × the noise level"
+
+
 def summarise(prep: Prepared, res: Residuals, sc: Scores, d: Decision, o: DiagnoseOptions) -> dict[str, Any]:
     """The summary (DESIGN.md's ``summary.json`` contract and what the report shows)."""
     from battlab.diagnose import score
+    from battlab.diagnose.confirm import cannot_tell
     from battlab.diagnose.directions import TYPICAL
 
-    verdict = d.verdict
     white_var = float(np.mean(res.noise))  # each log's noise, measured on its own voltage
     s2_white = float(np.mean(res.r[np.isfinite(res.r)] ** 2) / max(white_var, 1e-300))
-    if d.cause is None and s2_white > S2_REFIT and sc.base_share > 0.5:
-        verdict += (
-            f"; the residual is {s2_white:.3g} × the noise level, but {100 * sc.base_share:.0f} % of it lies along "
-            "the base parameters' directions: refit them (battlab fit)"
-        )
-    base_rmse = d.base_fit.rmse_held_out_mV if d.base_fit else float("nan")
-    undecided = cannot_tell(d.cause, d.confirmations, base_rmse, sc.ranked, sc.mimics, s2_white, sc.base_share)
+    v = d.verdict
+    verdict = _verdict_text(d, sc, s2_white, res)
+    undecided = cannot_tell(v, d.fits)
     untestable = testability.untestable(prep.train, d.cause, 0.01 * float(prep.base["Q_nom"]))
-    seen = {d.cause} | {s.cause for s in sc.passing} | {c["cause"] for c in undecided + untestable}
+    seen = (
+        {d.cause}
+        | {s.cause for s in sc.passing}
+        | {k for c in undecided + untestable for k in c.get("causes", [c["cause"]])}
+    )
     undetectable = testability.undetectable(sc.sizes, seen, TYPICAL)
     if undetectable:
         verdict += "; too small to see on these data: " + ", ".join(c["cause"] for c in undetectable)
-    if undecided:
-        verdict += "; cannot tell " + ", ".join(c["cause"] for c in undecided) + " on these data"
+    chosen = v.chosen
+    gain = {
+        "rmse_before_mV": v.base.rmse_mV,
+        "rmse_after_mV": chosen.held.rmse_mV if chosen is not None and (d.cause or v.pairs) else None,
+        "held_out": prep.held_name,
+        "baseline": v.baseline,
+        "rmse_cell_mV": d.cell.rmse_mV,
+        "rmse_base_refit_mV": d.base_fit.held.rmse_mV if d.base_fit is not None else None,
+        "rmse_before_K": v.base.rmse_K,
+        "rmse_after_K": chosen.held.rmse_K if chosen is not None else None,
+        "gain": (1.0 - chosen.held.metric / v.base.metric) if chosen is not None else None,
+        "z": v.z,
+    }
+    if chosen is not None:
+        gain["cause_fitted"] = chosen.key
     return {
         "cause": d.cause,
+        "how": v.how,
+        "fix": (
+            f"refit {', '.join(chosen.names)} (battlab fit)"
+            if v.how == "refit" and chosen is not None
+            else f"extend the model: battlab fit --extension {d.cause}"
+            if d.cause is not None
+            else None
+        ),
         "cannot_tell": undecided,
         "untestable": untestable,
         "undetectable": undetectable,
         "detectable_size": sc.sizes,
         "ranking": [
-            {**row, "passes": bool(s.dof > 0 and s.p_value < sc.p_threshold), "mimicked_by": sc.mimics[s.cause]}
+            {**row, "passes": bool(s.dof > 0 and s.p_value < sc.p_threshold), "mimicked_by": sc.mimics.get(s.cause, [])}
             for row, s in zip(score.summary(sc.ranked), sc.ranked, strict=True)
         ],
-        "extension_gain": d.gain,
+        "extension_gain": gain,
         "verdict": verdict,
         "threshold": {
             "p_value": sc.p_threshold,
-            "rule": f"block-variance score test, Hotelling T² vs F, Bonferroni alpha {o.alpha:g} over "
-            f"{len(sc.ranked)} causes, blocks of {sc.block_s:.0f} s",
+            "rule": f"block-variance score test per cause (its own directions, the other causes' base directions "
+            f"projected out), Hotelling T² vs F, Bonferroni alpha {o.alpha:g} over {len(sc.ranked)} causes, blocks "
+            f"of {sc.block_s:.0f} s; named on held-out data at a gain of {100 * MIN_GAIN:.0f} % and {Z_MIN:g} "
+            "standard errors",
         },
         "indistinguishable": [[a, b, c] for a, b, c in sc.twins],
         "base_explained": sc.base_share,
+        "shares": sc.share,
+        "channels": {"voltage_rows": sc.ch.n_voltage, "temperature_rows": sc.ch.n_temperature},
         "white_noise_mV": 1e3 * float(np.sqrt(white_var)),
         "residual_over_noise": s2_white,
         "residual": res.analysis.summary(),
         "data": prep.files,
         "held_out": prep.held_name,
-        "confirmations": [c.__dict__ for c in ([d.base_fit] if d.base_fit else []) + d.confirmations],
+        "confirmations": [c.__dict__ for c in ([d.base_fit.confirmation] if d.base_fit else []) + d.confirmations],
+        "worse_than_no_fit": v.worse,
         "warnings": prep.warnings,
     }
 
@@ -398,6 +546,7 @@ def diagnose(options: DiagnoseOptions, subscribers: Sequence[Subscriber] = ()) -
     d = decide_step(prep, fm, sc, o, say)
     summary = summarise(prep, res, sc, d, o)
     if o.also_fit:
-        summary["also_fitted"] = also_fit_step(prep, d, o, say)
+        summary["also_fitted"] = also_fit_step(prep, d, sc, o, say)
     summary["seconds"] = time.perf_counter() - t_start
-    return DiagnosisReport(summary, res.analysis, sc.ranked, d.confirmations, d.base_fit, cell.name, prep.warnings)
+    base_fit = d.base_fit.confirmation if d.base_fit is not None else None
+    return DiagnosisReport(summary, res.analysis, sc.ranked, d.confirmations, base_fit, cell.name, prep.warnings)

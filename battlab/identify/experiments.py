@@ -58,6 +58,8 @@ class Experiment:
     mask: np.ndarray | None = None
     truth: np.ndarray | None = None  # noise-free voltage, when known (virtual lab)
     lead_in: int = 0
+    temperature: np.ndarray | None = None  # measured surface temperature [K] at ``profile.t`` (NaN: none there)
+    t_variance: float = 0.0  # its noise variance [K²] (0: unknown, the temperature is not scored)
 
     def __post_init__(self) -> None:
         v = np.asarray(self.voltage, float).reshape(-1)
@@ -75,6 +77,16 @@ class Experiment:
             raise InputError(f"experiment {self.name}: lead-in of {self.lead_in} samples for {v.size} samples")
         m[: self.lead_in] = False
         object.__setattr__(self, "mask", m)
+        if self.temperature is not None:
+            T = np.asarray(self.temperature, float).reshape(-1)
+            if T.size != v.size:
+                raise InputError(f"experiment {self.name}: {T.size} temperatures for {v.size} samples")
+            object.__setattr__(self, "temperature", T)
+
+    @property
+    def has_temperature(self) -> bool:
+        """Whether the surface temperature is logged and can be scored (a known noise level, finite samples)."""
+        return self.temperature is not None and self.t_variance > 0 and bool(np.isfinite(self.temperature).any())
 
     @property
     def hours(self) -> float:
@@ -264,5 +276,29 @@ def experiments_from_data(
         name = data.name if len(segs) == 1 else f"{data.name}#{n}"
         prof = Profile(t, i, id=name, soc0=soc)
         T0 = float(surf[k0]) if surf is not None and np.isfinite(surf[k0]) else None
-        out.append(Experiment(name, prof, v, soc, variance_of(prof, noise), amb, T0))
+        T, t_var = None, 0.0
+        if surf is not None and np.isfinite(surf[sl]).sum() >= 10:
+            ok = np.isfinite(surf[sl])
+            T = np.interp(t + data.t[sl][0], data.t[sl][ok], surf[sl][ok])
+            t_var = temperature_noise_variance(surf[sl][ok])
+        out.append(Experiment(name, prof, v, soc, variance_of(prof, noise), amb, T0, temperature=T, t_variance=t_var))
     return out
+
+
+#: the smallest temperature noise assumed [K]: a logger's resolution below it is not believed
+T_NOISE_FLOOR_K = 0.01
+
+
+def temperature_noise_variance(T: np.ndarray) -> float:
+    """The noise variance [K²] of a logged temperature, from its sample-to-sample changes (a temperature moves
+    slowly: what jumps between samples is noise): the robust spread (MAD) of the first differences over √2, or a
+    logger's quantisation step Δ as Δ²/12 when most changes are zero; at least :data:`T_NOISE_FLOOR_K`²."""
+    d = np.diff(np.asarray(T, float))
+    d = d[np.isfinite(d)]
+    if d.size < 5:
+        return T_NOISE_FLOOR_K**2
+    sigma = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / np.sqrt(2.0)
+    nonzero = np.abs(d[d != 0.0])
+    if sigma == 0.0 and nonzero.size:
+        sigma = float(np.min(nonzero)) / np.sqrt(12.0)
+    return max(sigma, T_NOISE_FLOOR_K) ** 2

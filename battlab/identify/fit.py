@@ -59,6 +59,8 @@ class Options:
     #: the optimiser met its tolerances the prediction is reported only: along the curved valleys of nearly
     #: dependent parameters the linearisation holds for steps of about 1e-3 in θ̄.)
     predicted_tol: float = 5e-3
+    #: Also fit the logged surface temperature where the data have it (rows weighted by its own noise level)
+    temperature: bool = False
 
 
 @dataclass(frozen=True)
@@ -151,6 +153,21 @@ def _nan_to_none(a: np.ndarray | None) -> list[list[float | None]] | None:
 
 POLISH_STEPS = (1.0, 0.5, 0.25, 0.1, 0.03, 0.01)
 
+#: a porosity is held this far [1] below the one that fills an electrode (ε_s + ε_e < 1)
+EPS_MARGIN = 1e-3
+
+
+def physical_upper(cell: Cell, names: Sequence[str]) -> np.ndarray:
+    """The upper bound of each fitted parameter in θ̄: 1, or less where the physical region ends inside the search
+    range (an electrolyte volume fraction ε_e± must leave room for the cell's active material: ε_s + ε_e < 1), so a
+    fit is held inside it by its parameterisation instead of failing on an impossible cell."""
+    out = np.ones(len(names))
+    for k, n in enumerate(names):
+        if n in ("eps_e_n", "eps_e_p"):
+            cap = 1.0 - float(cell[f"eps_s_{n[-1]}"]) - EPS_MARGIN
+            out[k] = float(np.clip(parameters.SPECS[n].normalise(cap), 1e-3, 1.0))
+    return out
+
 
 def _polish(prob: Problem, x: np.ndarray, opt: Options) -> tuple[np.ndarray, GaussNewtonStep, int]:
     """Bounded Gauss–Newton steps with backtracking after an optimiser stopped by its iteration limit (the
@@ -163,11 +180,11 @@ def _polish(prob: Problem, x: np.ndarray, opt: Options) -> tuple[np.ndarray, Gau
     """
     r, J, _ = prob.evaluate(x)
     cost = 0.5 * float(r @ r)
-    gn = bounded_gauss_newton(x, J, r)
+    gn = bounded_gauss_newton(x, J, r, prob.upper)
     used = 0
     while gn.failed is None and gn.predicted > opt.predicted_tol and used < opt.polish:
         for a in POLISH_STEPS[: opt.polish - used]:
-            xt = np.clip(x + a * gn.step, 0.0, 1.0)
+            xt = np.clip(x + a * gn.step, 0.0, prob.upper)
             rt = prob.evaluate(xt)[0]
             used += 1
             ct = 0.5 * float(rt @ rt)
@@ -177,7 +194,7 @@ def _polish(prob: Problem, x: np.ndarray, opt: Options) -> tuple[np.ndarray, Gau
             break
         x, cost = xt, ct
         r, J, _ = prob.evaluate(x)
-        gn = bounded_gauss_newton(x, J, r)
+        gn = bounded_gauss_newton(x, J, r, prob.upper)
     return x, gn, used
 
 
@@ -244,10 +261,13 @@ def _fit(
     ageing: Ageing | None = None,
     on_evaluation: Callable[[int, float], None] | None = None,
 ) -> FitResult:
-    prob = Problem(fm, experiments, names, theta_full, soc_span, pool, ageing)
+    prob = Problem(fm, experiments, names, theta_full, soc_span, pool, ageing, opt.temperature)
     prob.on_evaluation = on_evaluation
+    prob.upper = np.r_[physical_upper(start, names), np.ones(prob.n_nuis + prob.n_age)]
     x0 = np.r_[
-        np.clip(theta_full[prob.idx], 1e-6, 1 - 1e-6), np.full(prob.n_nuis, 0.5), np.clip(prob.age_x0(), 0.0, 1.0)
+        np.clip(theta_full[prob.idx], 1e-6, physical_upper(start, names) - 1e-6),
+        np.full(prob.n_nuis, 0.5),
+        np.clip(prob.age_x0(), 0.0, 1.0),
     ]
     t0 = time.perf_counter()
     r0, _, preds0 = prob.evaluate(x0)
@@ -261,7 +281,7 @@ def _fit(
             lambda x: prob.evaluate(x)[0],
             x0,
             jac=lambda x: prob.evaluate(x)[1],
-            bounds=(0.0, 1.0),
+            bounds=(np.zeros_like(x0), prob.upper),
             method="trf",
             x_scale="jac",
             ftol=opt.ftol,
@@ -319,7 +339,11 @@ def _fit(
         Q, _ = np.linalg.qr(J[:, p:])
         J = J[:, :p] - Q @ (Q.T @ J[:, :p])  # marginal information of the physical parameters
         x = x[:p]
-    at_bound = [("lower" if v < opt.bound_tol else "upper" if v > 1 - opt.bound_tol else None) for v in x]
+    top = prob.upper[: len(x)]
+    at_bound = [
+        ("lower" if v < opt.bound_tol else "upper" if v > u - opt.bound_tol else None)
+        for v, u in zip(x, top, strict=True)
+    ]
     st = statistics.compute(names, x, J, -r, at_bound, rcond=opt.rcond)
     th = prob.full(x)
     fitted = start.with_normalised(**{n: float(v) for n, v in zip(names, x, strict=True)})

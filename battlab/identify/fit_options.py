@@ -90,6 +90,9 @@ class FitOptions:
     )
     output: str | Path | None = None
     hold_radii: bool = True
+    #: leave out (and report) the parameters the data cannot inform instead of refusing the fit (the campaign's
+    #: extend step: a cause's temperature coefficients at one ambient)
+    drop_uninformed: bool = False
     #: a :class:`battlab.noise.NoiseModel` or a noise file; None: eq. 38 from the run logs' trials, else the paper's
     noise: Any = None
     per_file_ageing: tuple[str, ...] | str = field(

@@ -139,9 +139,29 @@ def _prepare(o: FitOptions, dyn: Sequence[Any], cell: Cell, report: FitReport) -
         logged = runlog.logged_groups(dyn)
         groups = tuple((tuple(g.parameters), frozenset(g.selected)) for g in logged) if logged is not None else None
     st = stages(o.params, o.plan, exps, groups, cell)
+    if o.drop_uninformed:
+        st, dropped = drop_uninformed(st, cell)
+        if dropped:
+            report.summary["not_informed"] = dropped
     check_stages_informed(st, cell)
     report.experiments = list(exps)
     return _Dynamic(exps, st, ForwardModel(cell, v_margin=0.15), ageing, by_ambient)
+
+
+def drop_uninformed(stages_: list[Any], cell: Cell) -> tuple[list[Any], dict[str, str]]:
+    """The stages without the parameters their data cannot inform (cumulative, as they are fitted), and those
+    left out with why."""
+    from battlab.identify.fit import Stage
+    from battlab.identify.informing import uninformed
+
+    seen: list[Any] = []
+    out, dropped = [], {}
+    for st in stages_:
+        seen += [e for e in st.experiments if e not in seen]
+        bad = uninformed(st.names, seen, 0.01 * float(cell["Q_nom"]))
+        dropped.update(bad)
+        out.append(Stage(tuple(n for n in st.names if n not in bad), st.experiments))
+    return [s for s in out if s.names], dropped
 
 
 def _export(report: FitReport, unaged: Cell, dyn: _Dynamic) -> Cell:

@@ -31,6 +31,7 @@ class Output:
     ended_by: str | None
     T_surface: np.ndarray | None = None
     T_core: np.ndarray | None = None
+    dT: np.ndarray | None = None  # dT_surface/dθ̄ (n, n_sens) [K]
 
 
 class ForwardModel:
@@ -128,7 +129,7 @@ class ForwardModel:
             for spec, factor in ((spec_r, 1.0), (spec_t, dT)):
                 if dV is not None and spec.qualified in names:
                     dV[:, names.index(spec.qualified)] += i_dis * factor * (spec.upper - spec.lower)
-        return Output(out.voltage + r * i_dis, dV, out.ended_by, out.T_surface, out.T_core)
+        return Output(out.voltage + r * i_dis, dV, out.ended_by, out.T_surface, out.T_core, out.dT)
 
     def _run(
         self,
@@ -163,7 +164,7 @@ class ForwardModel:
                 T0=T0,
                 v_limits=lim,
             )
-            return Output(res.voltage, res.sensitivities, res.ended_by, res.T_surface, res.T_core)
+            return Output(res.voltage, res.sensitivities, res.ended_by, res.T_surface, res.T_core, res.sensitivities_T)
         from battlab.model import solver
 
         cell = self.cell
@@ -184,4 +185,6 @@ class ForwardModel:
             limits,
             start,
         )
-        return Output(traj.voltage, traj.dV if names else None, traj.ended_by, traj.T2, traj.T1)
+        return Output(
+            traj.voltage, traj.dV if names else None, traj.ended_by, traj.T2, traj.T1, traj.dT2 if names else None
+        )

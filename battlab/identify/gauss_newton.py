@@ -20,9 +20,12 @@ class GaussNewtonStep:
     failed: str | None = None
 
 
-def bounded_gauss_newton(x: np.ndarray, J: np.ndarray, r: np.ndarray) -> GaussNewtonStep:
+def bounded_gauss_newton(
+    x: np.ndarray, J: np.ndarray, r: np.ndarray, upper: np.ndarray | None = None
+) -> GaussNewtonStep:
     """The Gauss–Newton step δ from ``x`` that minimises the linearised cost ½‖r + Jδ‖² inside the box
-    0 ≤ x + δ ≤ 1 (bounded linear least squares on the column-scaled Jacobian), and the decrease it predicts.
+    0 ≤ x + δ ≤ ``upper`` (default 1; bounded linear least squares on the column-scaled Jacobian), and the decrease
+    it predicts.
 
     Unbounded, the step along the nearly dependent directions (singular values 1e-4 of the largest) runs far
     outside [0, 1]; inside the box the prediction stays meaningful.
@@ -41,7 +44,8 @@ def bounded_gauss_newton(x: np.ndarray, J: np.ndarray, r: np.ndarray) -> GaussNe
     norms = np.linalg.norm(J, axis=0)
     norms[norms == 0] = 1.0
     A = J / norms
-    lo, hi = -x * norms, (1.0 - x) * norms
+    top = np.ones_like(x) if upper is None else np.asarray(upper, float)
+    lo, hi = -x * norms, (top - x) * norms
     hi = np.maximum(hi, lo + 1e-300)
     r2 = float(r @ r)
     slack = 1e-9 * r2  # round-off of ½(‖r‖² − ‖r + Jδ‖²), far below any predicted_tol in use

@@ -30,8 +30,11 @@ class Problem:
         soc_span: float = 0.0,
         pool: ThreadPoolExecutor | None = None,
         ageing: Ageing | None = None,
+        temperature: bool = False,
     ) -> None:
         self.fm = fm
+        #: also score the logged surface temperature (rows (T̂ − T)/σ_T of the experiments that log it)
+        self.temperature = bool(temperature)
         self.exps = list(experiments)
         self.names = tuple(names)
         order = getattr(fm, "names", parameters.NAMES)  # θ̄'s order: the 18, then the cell's extensions' KEY.NAME
@@ -53,6 +56,9 @@ class Problem:
         self._cache: dict[bytes, tuple[np.ndarray, np.ndarray, list[np.ndarray]]] = {}  # the last two points
         self.n_sim = 0  # simulations of all experiments (every evaluation not found in the cache)
         self.pool = pool
+        #: the fitted parameters' upper bounds in θ̄ (1 unless the physical region ends inside the range), then 1 for
+        #: the nuisances
+        self.upper = np.ones(len(self.names))
         #: called after every simulation of all experiments with (simulations so far, cost ½‖r‖²)
         self.on_evaluation: Callable[[int, float], None] | None = None
         #: the lowest-cost point evaluated so far and its cost (kept apart from the cache: never re-simulated)
@@ -93,32 +99,52 @@ class Problem:
         return self._cache[key]
 
     def _one(self, i: int, th: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Weighted residuals, Jacobian rows and prediction of experiment i."""
+        """Weighted residuals, Jacobian rows and voltage prediction of experiment i (with the temperature's rows
+        after the voltage's when it is scored)."""
         e = self.exps[i]
         p = len(self.names)
         soc0 = self.soc_of(i, x)
-        pred, S = self._run(th, i, soc0, True, x)
+        use_T = self.temperature and e.has_temperature
+        pred, S, predT, ST = self._run(th, i, soc0, True, x, use_T)
         w = 1.0 / np.sqrt(e.variance)
         m = e.mask
-        cols = [S]
+        cols, colsT = [S], [ST]
+
+        def fd(soc: float, xh: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray | None]:
+            p2, _, p2T, _ = self._run(th, i, soc, False, xh, use_T)
+            return (p2 - pred) / h, None if p2T is None or predT is None else (p2T - predT) / h
+
         if self.n_nuis:  # dV/du by a one-sided difference (the start SOC has no exact sensitivity)
             h = 1e-3 if x[p + i] < 0.5 else -1e-3
-            p2, _ = self._run(th, i, soc0 + 2 * self.soc_span * h, False, x)
-            col = np.zeros((e.voltage.size, self.n_nuis))
-            col[:, i] = (p2 - pred) / h
+            dv, dT = fd(soc0 + 2 * self.soc_span * h, x, h)
+            col, colT = np.zeros((e.voltage.size, self.n_nuis)), np.zeros((e.voltage.size, self.n_nuis))
+            col[:, i] = dv
+            if dT is not None:
+                colT[:, i] = dT
             cols.append(col)
+            colsT.append(colT)
         if self.n_age:  # the file's ageing columns, one-sided differences as the start SOC's
-            col = np.zeros((e.voltage.size, self.n_age))
+            col, colT = np.zeros((e.voltage.size, self.n_age)), np.zeros((e.voltage.size, self.n_age))
             for j in self.age_columns(i):
                 h = 1e-3 if x[j] < 0.5 else -1e-3
                 xh = x.copy()
                 xh[j] += h
-                p2, _ = self._run(th, i, soc0, False, xh)
-                col[:, j - p - self.n_nuis] = (p2 - pred) / h
+                dv, dT = fd(soc0, xh, h)
+                col[:, j - p - self.n_nuis] = dv
+                if dT is not None:
+                    colT[:, j - p - self.n_nuis] = dT
             cols.append(col)
-        if len(cols) > 1:
-            S = np.hstack(cols)
-        return ((pred - e.voltage) * w)[m], (S * w[:, None])[m], pred
+            colsT.append(colT)
+        S = np.hstack(cols) if len(cols) > 1 else S
+        r, J = ((pred - e.voltage) * w)[m], (S * w[:, None])[m]
+        if use_T and predT is not None and ST is not None:
+            assert e.temperature is not None
+            mT = m & np.isfinite(e.temperature)
+            wT = 1.0 / np.sqrt(e.t_variance)
+            ST = np.hstack(colsT) if len(colsT) > 1 else ST
+            r = np.concatenate([r, ((predT - e.temperature) * wT)[mT]])
+            J = np.vstack([J, (ST * wT)[mT]])
+        return r, J, pred
 
     def age_columns(self, i: int) -> list[int]:
         """The positions in x of experiment i's file's ageing parameters."""
@@ -148,8 +174,11 @@ class Problem:
             return e.soc0
         return float(np.clip(e.soc0 + 2 * self.soc_span * (x[len(self.names) + i] - 0.5), 0.0, 1.0))
 
-    def _run(self, th: np.ndarray, i: int, soc0: float, sens: bool, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Prediction and sensitivities of experiment i at θ (full) with the ageing values of x."""
+    def _run(
+        self, th: np.ndarray, i: int, soc0: float, sens: bool, x: np.ndarray, temperature: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """Voltage prediction and sensitivities of experiment i at θ (full) with the ageing values of x, and (with
+        ``temperature``) the surface temperature's [K] and its sensitivities."""
         e = self.exps[i]
         n = e.voltage.size
         start, capacity = None, 1.0
@@ -160,7 +189,12 @@ class Problem:
             try:
                 start = rest_stoichiometries(self.fm.cell, n_li, float(self.fm.cell.ocv(soc0)), capacity=capacity)
             except InputError:  # no such state: a large but finite residual, as for nothing simulated
-                return np.full(n, e.voltage[0] + 1.0), np.zeros((n, len(self.names)))
+                zT = (
+                    (np.full(n, float(e.ambient) + 50.0), np.zeros((n, len(self.names))))
+                    if temperature
+                    else (None, None)
+                )
+                return np.full(n, e.voltage[0] + 1.0), np.zeros((n, len(self.names))), *zT
         out = self.fm.run(
             th,
             e.profile,
@@ -181,7 +215,16 @@ class Problem:
             pred[k:] = out.voltage[-1]
         else:
             pred[:] = e.voltage[0] + 1.0  # nothing simulated: a large but finite residual
-        return pred, S
+        if not temperature:
+            return pred, S, None, None
+        predT = np.full(n, float(e.ambient) + 50.0)  # nothing simulated: a large but finite residual
+        ST = np.zeros((n, len(self.names)))
+        if k and out.T_surface is not None:
+            predT[:k] = out.T_surface
+            predT[k:] = out.T_surface[-1]
+            if sens and out.dT is not None:
+                ST[:k] = out.dT
+        return pred, S, predT, ST
 
 
 def rmse_mV(exps: Sequence[Experiment], preds: list[np.ndarray]) -> dict[str, float]:

@@ -235,6 +235,7 @@ def with_lead_in(e: Experiment, data: LoggedData, a: int, b: int, soc0: float, d
         T0=T0,
         mask=None if e.mask is None else np.concatenate([np.zeros(n, bool), e.mask]),
         truth=None if e.truth is None else np.concatenate([np.full(n, np.nan), e.truth]),
+        temperature=None if e.temperature is None else np.concatenate([np.full(n, np.nan), e.temperature]),
         lead_in=n,
     )
 

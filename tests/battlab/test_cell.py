@@ -273,3 +273,15 @@ def test_load_errors(tmp_path: Path) -> None:
     bad.write_text("not toml [")
     with pytest.raises(InputError, match="not valid TOML"):
         Cell.load(bad)
+
+
+def test_a_cell_name_can_switch_catalog_extensions_on() -> None:
+    """``CELL+KEY[:NAME=VALUE,...]``: a virtual truth that hides an effect, written where a cell name goes (the
+    campaign's ``[campaign] truth``); a mistake is one error naming the part."""
+    c = Cell.load("nca18650-true+contact_resistance:R_c=0.005+hysteresis:M_n=0.01,gamma_n=40")
+    assert c.extensions["contact_resistance"]["R_c"] == 0.005 and c.extensions["hysteresis"]["gamma_n"] == 40.0
+    assert c["D_s_n"] == Cell.load("nca18650-true")["D_s_n"]
+    with pytest.raises(InputError, match="did you mean 'contact_resistance'"):
+        Cell.load("nca18650+contact_resistence")
+    with pytest.raises(InputError, match="'R_c=five' is not NAME=VALUE with a number"):
+        Cell.load("nca18650+contact_resistance:R_c=five")

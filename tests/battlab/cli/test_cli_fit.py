@@ -178,6 +178,29 @@ def test_groups_is_another_name_for_params(tmp_path, virtual_csv) -> None:
     assert list(summary["parameters"]) == ["R_s_n"] and summary["status"] == "complete: stage 1 of 1"
 
 
+def test_fit_says_how_good_it_is_and_how_far_to_trust_it(tmp_path, virtual_csv) -> None:
+    """The terminal gives each data file's RMSE before -> after against its noise, what to do when a stage stops at
+    its limit, the estimates with their units, and a last line with the answer; an unconverged fit's intervals are
+    marked untrusted in the summary, with why."""
+    a = virtual_csv(tmp_path, 19, 1)
+    out = tmp_path / "cell.bpx.json"
+    r = CliRunner().invoke(
+        main, ["fit", a, "--cell", "nca18650", "--params", "R_s_n,D_s_p", "--max-iter", "2", "-o", str(out)]
+    )
+    assert r.exit_code == 0, r.output
+    assert "RMSE before -> after [mV]" in r.output and "noise [mV]" in r.output
+    assert "stopped at its limit of 2 evaluations" in r.output and "--max-iter 4" in r.output
+    assert "m2/s" in r.output and "trusted" in r.output
+    last = r.output.strip().splitlines()[-2]
+    assert last.startswith("fit NOT converged: RMSE") and "of 2 intervals trusted" in last, r.output
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    for name in ("R_s_n", "D_s_p"):
+        p = summary["parameters"][name]
+        assert p["trusted"] is False and "the fit did not converge" in p["untrusted_because"]
+    assert summary["trust"]["trusted"] == [] and "the fit did not converge" in summary["trust"]["caveats"]
+    assert set(summary["rmse_before_mV"]) == set(summary["rmse_mV"])
+
+
 @pytest.mark.parametrize(("crash", "code"), [(RuntimeError("solver diverged"), 1), (KeyboardInterrupt(), 130)])
 def test_a_crash_in_stage_1_keeps_the_equilibrium_fit(tmp_path, virtual_csv, ocv_csv, monkeypatch, crash, code) -> None:
     """With a C/20 test among the data, the equilibrium fit is printed and written (partial) before stage 1: a crash

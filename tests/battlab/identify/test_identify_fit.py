@@ -277,3 +277,22 @@ def test_full_problem_groupwise_recovery_from_nominal() -> None:
     held_out = synthesize(fm, truth, lib[8], lib[8].soc0, seed=99, name="pulse 8")
     table, _ = rmse_table(fm, {"fit": last.cell}, [held_out])
     assert table["fit"]["pulse 8"] <= 2e3 * np.sqrt(held_out.variance[0])
+
+
+def test_a_fit_is_held_inside_the_physical_region() -> None:
+    """An electrolyte volume fraction's search range runs past the porosity the cell's active material leaves
+    (ε_s⁺ 0.69: ε_e⁺ < 0.31, its range to 0.33): the fit's bound there is the physical one, so a fit pulled toward
+    it ends at or below it instead of failing on an impossible cell."""
+    from battlab.identify.fit import physical_upper
+    from battlab.identify.virtual import synthesize
+
+    start = battlab.Cell.load("nca18650").with_values(eps_s_p=0.69, eps_e_p=0.30)
+    top = physical_upper(start, ["eps_e_p", "R_s_n"])
+    assert top[1] == 1.0 and P.SPECS["eps_e_p"].denormalise(float(top[0])) == pytest.approx(0.309)
+    truth = start.with_values(eps_e_p=0.3089)
+    fm = ForwardModel(start)
+    t = np.arange(0.0, 601.0)
+    prof = Profile(t, np.where((t // 60) % 2 == 0, -5.4, 0.0), id="pulses")
+    e = synthesize(fm, truth, prof, 0.8, seed=5)
+    res = F.fit(start, [e], ["eps_e_p"], forward=fm, options=F.Options(max_nfev=8))
+    assert res.cell["eps_e_p"] <= 0.309 + 1e-9 and res.cell["eps_e_p"] + res.cell["eps_s_p"] < 1.0

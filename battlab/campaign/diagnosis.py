@@ -1,0 +1,142 @@
+"""The campaign's diagnosis stage: the mission's last step on the campaign's own data.
+
+The OED fit's cell is diagnosed (:func:`battlab.diagnose.workflow.diagnose`) on the designed experiments' logs
+(training) with the held-out validation drive cycle; when the data cannot tell causes apart and ``[diagnosis]
+decide`` is on, the experiment that separates them is designed, run on the tester and added
+(:mod:`battlab.campaign.decide`), within ``budget_hours``. A named cause is then fitted (the extend step:
+``battlab fit`` on the designed experiments, the cause's extension on, its own parameters moved from the OED fit's
+cell) and both cells are scored on every held-out validation log: the residual before and after, against the
+noise-free truth on the virtual lab.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from battlab.campaign.context import Campaign, rel_path
+from battlab.campaign.stages import StageContext, StageOutput
+from battlab.cell import Cell
+
+
+def _validation_logs(ctx: StageContext) -> dict[str, tuple[Path, float]]:
+    """The validation stage's logs: name → (path, resampling step [s]); constant-current tests at 10 s."""
+    out = {}
+    for k, v in ctx.inputs["validation"].files.items():
+        if k.startswith("log_"):
+            name = k.removeprefix("log_")
+            out[name] = (ctx.directory / v, 10.0 if "discharge" in name else 1.0)
+    return out
+
+
+def _diagnose(camp: Campaign, ctx: StageContext, cell_path: Path, train: list[Path], held: Path) -> Any:
+    """The diagnosis, with deciding experiments on the tester when asked: (report, rounds, why undecided)."""
+    from battlab.campaign.decide import DecideOptions, decide
+    from battlab.diagnose.workflow import DiagnoseOptions, diagnose
+
+    cfg = camp.config.diagnosis
+    options = DiagnoseOptions((*train, held), cell_path, held_out=held, max_iter=cfg.max_evaluations)
+
+    def show(ev: Any) -> None:
+        if ev.kind == "note" and ev.text:
+            ctx.progress(0, 0, ev.text)
+
+    if not cfg.decide:
+        return diagnose(options, [show]), [], None
+    runs = ctx.directory / "runs" / "decide"
+    dec = decide(
+        DecideOptions(
+            options,
+            runs,
+            camp.tester.cycler_url,
+            camp.tester.chamber_url,
+            camp.tester.truth if camp.tester.virtual else None,
+            cfg.budget_hours,
+            tuple(cfg.ambients_degC),
+        ),
+        [show],
+    )
+    return dec.report, dec.rounds, dec.undecided
+
+
+def _extend(camp: Campaign, ctx: StageContext, cause: str, cell_path: Path, train: list[Path], out: Path) -> Path:
+    """The extend step: the named cause's extension switched on in the OED fit's cell and its own parameters
+    (:func:`battlab.diagnose.confirm.mechanism_names`) fitted on the designed experiments."""
+    from battlab import causes
+    from battlab.diagnose.confirm import mechanism_names
+    from battlab.identify.fit_options import FitOptions
+    from battlab.identify.workflow import fit
+
+    cell = Cell.load(str(cell_path))
+    start = cell.with_extension(cause) if causes.cause(cause).extension is not None else cell
+    names = mechanism_names(start, cause, causes.cause(cause).qualified_names)
+    options = FitOptions(
+        data=tuple(train),
+        cell=start,
+        params=",".join(names),
+        noise=ctx.path("noise", "model"),
+        max_iter=camp.config.diagnosis.max_evaluations * 2,
+        output=out,
+        drop_uninformed=True,
+    )
+    fit(options)
+    return out
+
+
+def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
+    def run(ctx: StageContext) -> StageOutput:
+        from battlab.campaign.identify import score
+
+        cell_path = ctx.path("fit", "cell")
+        train = [ctx.directory / v for k, v in ctx.inputs["experiments"].files.items() if k.startswith("log_")]
+        logs = _validation_logs(ctx)
+        drive = next((p for name, (p, _) in logs.items() if "discharge" not in name), None)
+        out = ctx.directory / "diagnosis"
+        out.mkdir(parents=True, exist_ok=True)
+        if drive is None:
+            raise ValueError("campaign diagnosis: the validation stage logged no drive cycle to hold out")
+        rep, rounds, undecided = _diagnose(camp, ctx, cell_path, train, drive)
+        s = rep.summary
+        s["rounds"] = rounds
+        if undecided:
+            s["undecided"] = undecided
+        rep.write(out / "report")
+        files = {"summary": "diagnosis/diagnosis.json", "report": "diagnosis/report/report.html"}
+        for r in rounds:
+            files[f"log_decide_{r['round']}"] = rel_path(ctx, Path(r["experiment"]["log"]))
+        gain: dict[str, Any] = {"rmse_before_mV": None, "rmse_after_mV": None, "held_out": list(logs)}
+        table: dict[str, Any] = {}
+        cause = s["cause"]
+        if cause is not None:
+            extended = _extend(camp, ctx, cause, cell_path, train, out / "extended.bpx.json")
+            files["cell"] = "diagnosis/extended.bpx.json"
+            truth = Cell.load(camp.tester.truth) if camp.tester.virtual else None
+            cells = {"before": Cell.load(str(cell_path)), "after": Cell.load(str(extended))}
+            table = score(logs, cells, truth, out / "validation")["rmse_mV"]
+            mean = {k: sum(v.values()) / len(v) for k, v in table.items()}
+            gain.update(rmse_before_mV=mean["before"], rmse_after_mV=mean["after"])
+        summary = {
+            "method": "battlab diagnose on the designed experiments, the validation drive cycle held out"
+            + (", deciding experiments on the tester" if camp.config.diagnosis.decide else ""),
+            "cause": cause,
+            "how": s.get("how"),
+            "verdict": s["verdict"],
+            "cannot_tell": s["cannot_tell"],
+            "rounds": rounds,
+            "undecided": undecided,
+            "diagnosis_gain": s["extension_gain"],
+            "extension_gain": gain,
+            "validation_rmse_mV": table,
+            "residual_over_noise": s["residual_over_noise"],
+            "lab_hours": sum(r["experiment"]["lab_hours"] for r in rounds),
+        }
+        from battlab.campaign.context import write_json
+
+        write_json(out / "diagnosis.json", summary)
+        return StageOutput(files, summary, summary["lab_hours"])
+
+    return run
+
+
+__all__ = ["diagnosis"]

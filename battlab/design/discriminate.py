@@ -1,0 +1,149 @@
+"""Model-discrimination design: the next experiment that best tells two (or more) candidate causes apart.
+
+Each candidate is a cell fitted to the data so far (its cause's parameters at their fitted values). For a candidate
+experiment (a library profile at an ambient temperature the chamber can reach) each cell's voltage (and, where
+compared, surface temperature) is simulated with its exact sensitivities; the criterion is Atkinson and Fedorov's
+T-optimality, linearised: the divergence one cell's prediction keeps from the other's after the other refits its own
+parameters,
+
+    T_ab = min_δ ‖W^½ (ŷ_a − ŷ_b − S_b δ)‖²,
+
+with W the noise model's weights (eqs. 37–40), taken both ways (the experiment must separate them whichever is
+true): T = min(T_ab, T_ba). Under Gaussian noise with the weights' variance, T/2 is the Kullback–Leibler divergence of
+the two predictions after refitting, so T is about the χ² by which the wrong one will miss. The chosen experiment
+maximises T per lab hour among those that reach a divergence worth running (:data:`T_ENOUGH`), else maximises T.
+An experiment that would pass a cell's voltage window or its temperature limit on either candidate is excluded
+and said (the run's safety limits would abort it, or the plan's window refuse it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from battlab.cell import Cell
+from battlab.noise import NoiseModel
+from protocols.profile import Profile
+
+#: a divergence (χ²) above this separates the candidates with room to spare: the cheapest such experiment is taken
+T_ENOUGH = 100.0
+#: preparation before each profile (a full charge, a discharge to the start SOC, a rest) and the rest after [h]
+PREPARATION_H = 2.0
+
+
+@dataclass(frozen=True)
+class Option:
+    """One candidate experiment: a library profile at an ambient [K], its divergence T (χ² units), its lab hours, and
+    why it was excluded (None: it can run)."""
+
+    profile_id: str
+    ambient: float
+    divergence: float
+    hours: float
+    excluded: str | None = None
+
+    @property
+    def per_hour(self) -> float:
+        return self.divergence / self.hours if self.hours > 0 else 0.0
+
+
+@dataclass(frozen=True)
+class Discrimination:
+    """The chosen experiment (None: nothing can run), every option weighed, and the candidates compared."""
+
+    causes: tuple[str, ...]
+    chosen: Option | None
+    options: tuple[Option, ...] = field(default_factory=tuple)
+
+    def summary(self) -> dict[str, object]:
+        return {
+            "causes": list(self.causes),
+            "criterion": "T-optimal (Atkinson-Fedorov, linearised), both ways: chi2 by which the wrong cause misses",
+            "chosen": None if self.chosen is None else self.chosen.__dict__,
+            "options": [o.__dict__ for o in sorted(self.options, key=lambda o: -o.divergence)],
+            "excluded": [
+                {"profile": o.profile_id, "ambient_degC": o.ambient - 273.15, "why": o.excluded}
+                for o in self.options
+                if o.excluded
+            ],
+        }
+
+
+def _t_criterion(ya: np.ndarray, yb: np.ndarray, Sb: np.ndarray, w: np.ndarray) -> float:
+    """min_δ ‖W^½ (ya − yb − Sb δ)‖² (linear least squares)."""
+    sw = np.sqrt(w)
+    d = (ya - yb) * sw
+    if Sb.size == 0:
+        return float(d @ d)
+    A = Sb * sw[:, None]
+    delta, *_ = np.linalg.lstsq(A, d, rcond=None)
+    rest = d - A @ delta
+    return float(rest @ rest)
+
+
+def weigh(
+    models: Mapping[str, tuple[Cell, Sequence[str]]],
+    profile: Profile,
+    soc0: float,
+    ambient: float,
+    noise: NoiseModel,
+    limits: tuple[float, float, float],
+) -> Option:
+    """The option of one profile at one ambient: ``models`` maps each cause to its fitted cell and the parameters
+    it would refit; ``limits`` (V_min, V_max [V], T_max [K]) those of the run."""
+    from battlab.simulation import simulate
+
+    v_min, v_max, t_max = limits
+    runs = {}
+    for key, (cell, names) in models.items():
+        res = simulate(cell, profile, soc0=soc0, ambient=ambient, T0=ambient, sensitivities=list(names))
+        if res.ended_by is not None or res.voltage.size < profile.t.size:
+            return Option(str(profile.id), ambient, 0.0, 0.0, f"{key}: the run would stop ({res.ended_by})")
+        if res.voltage.min() < v_min or res.voltage.max() > v_max:
+            return Option(str(profile.id), ambient, 0.0, 0.0, f"{key}: the voltage leaves {v_min}-{v_max} V")
+        if res.T_surface is not None and float(np.max(res.T_surface)) > t_max:
+            return Option(str(profile.id), ambient, 0.0, 0.0, f"{key}: the surface passes {t_max - 273.15:.0f} degC")
+        runs[key] = res
+    q = noise.q(profile)
+    w = np.full(profile.t.size, 1.0 / max(q, noise.floor) ** 2)
+    keys = list(runs)
+    t = np.inf
+    for a in keys:
+        for b in keys:
+            if a != b:
+                sb = runs[b].sensitivities if runs[b].sensitivities is not None else np.zeros((w.size, 0))
+                t = min(t, _t_criterion(runs[a].voltage, runs[b].voltage, sb, w))
+    hours = float(profile.t[-1] - profile.t[0]) / 3600.0 + PREPARATION_H
+    return Option(str(profile.id), ambient, float(t), hours)
+
+
+def discriminate(
+    models: Mapping[str, tuple[Cell, Sequence[str]]],
+    profiles: Sequence[Profile],
+    ambients: Sequence[float],
+    *,
+    noise: NoiseModel | None = None,
+    limits: tuple[float, float, float] | None = None,
+    budget_hours: float | None = None,
+) -> Discrimination:
+    """Weigh every profile (at its ``soc0``) at every ambient [K] and choose (see the module docstring); options over
+    ``budget_hours`` are excluded."""
+    noise = noise or NoiseModel()
+    first = next(iter(models.values()))[0]
+    lim = limits or (float(first["V_min"]), float(first["V_max"]), float(first["T_max"]))
+    options = []
+    for amb in ambients:
+        for p in profiles:
+            o = weigh(models, p, float(p.soc0 if p.soc0 is not None else 0.5), float(amb), noise, lim)
+            if o.excluded is None and budget_hours is not None and o.hours > budget_hours:
+                o = Option(o.profile_id, o.ambient, o.divergence, o.hours, f"{o.hours:.1f} h over the budget")
+            options.append(o)
+    ok = [o for o in options if o.excluded is None]
+    enough = [o for o in ok if o.divergence >= T_ENOUGH]
+    chosen = max(enough, key=lambda o: o.per_hour) if enough else max(ok, key=lambda o: o.divergence, default=None)
+    return Discrimination(tuple(models), chosen, tuple(options))
+
+
+__all__ = ["PREPARATION_H", "T_ENOUGH", "Discrimination", "Option", "discriminate", "weigh"]
