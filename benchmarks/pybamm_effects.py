@@ -26,7 +26,7 @@ The effects and the catalog key each expects (:data:`CASES`; two sizes or forms 
 - ``equilibrium``: more lithium in the negative electrode at the start than the logged SOC implies (its
   stoichiometry shifted), and the positive electrode's OCP curve offset.
 
-Generation is slow (PyBaMM takes 2-10 min per case on 2 shared cores), so it is cached: ``python
+Generation is slow (PyBaMM took 1.5-15 min per case on 2 cores shared at a load of 10-16), so it is cached: ``python
 benchmarks/pybamm_effects.py --data DIR`` makes, per case, ``NAME.bdf.csv`` with its sidecar, ``NAME.bpx.json`` (the
 cell file to diagnose with), ``NAME.truth.npz`` (PyBaMM's noise-free solution) and ``NAME.case.json`` (the case's
 definition, its key and what the generation measured, written last), and makes a case again only when a file is

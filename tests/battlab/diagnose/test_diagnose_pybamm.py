@@ -108,7 +108,8 @@ def test_a_changed_case_definition_is_made_again(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_pybamm_is_fed_the_profile_exactly_and_matches_battlab_within_a_millivolt(made, nmc_bpx) -> None:
     """PyBaMM's discharge capacity equals the integrals of the current it was fed and of the logged current, and its
-    plain DFN is within 1 mV RMSE of battlab's on the same file (the null's model difference, at the noise)."""
+    plain DFN is within 1 mV RMSE of battlab's on the same file (the null's model difference, at the noise; an upper
+    bound only: battlab closer to PyBaMM passes)."""
     import battlab
     from battlab import Cell
 
@@ -120,7 +121,7 @@ def test_pybamm_is_fed_the_profile_exactly_and_matches_battlab_within_a_millivol
     res = battlab.simulate(cell, prof, soc0=SHORT.soc0, ambient=pe.AMBIENT_K)
     assert res.voltage.size == truth["voltage"].size
     rmse = 1e3 * float(np.sqrt(np.mean((res.voltage - truth["voltage"]) ** 2)))
-    assert 0.05 < rmse < 1.0, rmse
+    assert rmse < 1.0, rmse
     assert abs(float(res.T_core.max()) - float(truth["temperature"].max())) < 0.5  # K
 
 
