@@ -1,15 +1,15 @@
-"""``battlab diagnose`` on data made by another model: PyBaMM's DFN (lumped thermal) on the BPX NMC pouch cell,
-cooled at 10 W m⁻² K⁻¹, with one of PyBaMM's own options as the hidden effect, 50 min at 1 s of pulses with rests
-and UDDS, the virtual tester's noise, written as BDF CSV and diagnosed through the CLI with the same BPX file
-(benchmarks/pybamm_effects.py makes the data and runs every case).
+"""``battlab diagnose`` on data made by another model: PyBaMM's DFN (lumped thermal) on the BPX NMC pouch cell with
+one hidden effect, the benchmark of benchmarks/pybamm_effects.py (bench_diagnose_pybamm.py runs all of it on 4 h
+profiles). Here a small subset on a 1 h profile of the same kind, diagnosed through the command line: the plain DFN
+must be named nothing, and each effect case must be NAMED, with its catalog key (not merely "no wrong cause").
 
-The diagnosis must name the hidden cause, or name none while listing it among the causes that pass their score
-test; it must never name another cause, and on PyBaMM's plain DFN (0.35 mV RMSE from battlab's, the noise about
-0.2 mV) it must name nothing. PyBaMM takes about a minute per case here: the data are made once per module, and
-only the null and the hysteresis run here (about 4 min on 2 loaded cores); the benchmark runs the other causes."""
+Also: how the benchmark's data are made (the profile stays in its window and holds rests after both directions, a
+log whose charge does not match PyBaMM's is refused, a changed case definition is made again), and PyBaMM fed the
+profile exactly and close to battlab's own simulation of the same file."""
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -23,83 +23,132 @@ from tests.conftest import reference
 reference("pybamm")
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "benchmarks"))
+import bench_diagnose_pybamm as bench  # noqa: E402
 import pybamm_effects as pe  # noqa: E402
 
-pytestmark = pytest.mark.slow
+#: the CI subset's profile: 1 h of pulses, rests and a drive stretch (the benchmark's are 4 h)
+SHORT = pe.ProfileSpec(21, 0.75, ("UDDS",), drive_share=0.5, duration=3600.0)
+NULL, EFFECTS = "null_1", ("hysteresis_10mV", "electrolyte_de25_k50")
+
+
+def short(name: str) -> pe.Case:
+    """The benchmark's case ``name`` on the CI subset's profile."""
+    return dataclasses.replace(pe.CASES[name], name=f"{name}_1h", profile=SHORT)
 
 
 @pytest.fixture(scope="module")
-def made(tmp_path_factory: pytest.TempPathFactory, nmc_bpx: Path) -> Callable[[str], tuple[Path, Any]]:
-    """``made(case)``: (the BDF CSV of ``case``, PyBaMM's noise-free solution), made on first use."""
+def made(tmp_path_factory: pytest.TempPathFactory, nmc_bpx: Path) -> Callable[[str], dict[str, Any]]:
+    """``made(name)``: the generation record of the case on the short profile, its files in ``record["paths"]``."""
     assert pe.BPX.resolve() == nmc_bpx.resolve()
     folder = tmp_path_factory.mktemp("pybamm_effects")
-    from battlab import Cell
 
-    prof = pe.profile(float(Cell.from_bpx(pe.cell_file(folder))["Q_nom"]))
-    cache: dict[str, tuple[Path, Any]] = {}
-
-    def make(name: str) -> tuple[Path, Any]:
-        if name not in cache:
-            truth = pe.solve(pe.CASES[name], prof)
-            cache[name] = (pe.write_case(truth, folder / f"{name}.bdf.csv", name), truth)
-        return cache[name]
+    def make(name: str) -> dict[str, Any]:
+        case = short(name)
+        return {**pe.make_case(case, folder), "paths": pe.paths(folder, case.name)}
 
     return make
 
 
-@pytest.fixture(scope="module")
-def cell_file(tmp_path_factory: pytest.TempPathFactory, nmc_bpx: Path) -> Path:
-    return pe.cell_file(tmp_path_factory.mktemp("cell"))
+def test_the_profile_stays_in_its_window_with_rests_after_both_directions_and_drive_stretches() -> None:
+    q = pe.nominal_capacity()
+    for spec in (*pe.PROFILES, SHORT):
+        p = pe.make_profile(q, spec)
+        i = p.current
+        assert p.t[-1] == spec.duration and np.all(np.diff(p.t) == 1.0)
+        soc = spec.soc0 + np.concatenate([[0.0], np.cumsum(i[:-1])]) / 3600.0 / q
+        assert soc.min() >= pe.SOC_LO and soc.max() <= pe.SOC_HI
+        assert np.abs(i).max() <= 3.0 * q + 1e-9
+        # a rest of at least 2 min right after a charge and after a discharge
+        ends = np.flatnonzero(
+            (i[:-120] != 0.0) & np.all(np.lib.stride_tricks.sliding_window_view(i[1:], 120) == 0.0, 1)
+        )
+        assert {np.sign(i[k]) for k in ends} == {-1.0, 1.0}
+        # drive stretches: the current changes every second for minutes
+        assert np.count_nonzero(np.diff(i)) > 200
+    assert len({pe.make_profile(q, s).current.tobytes() for s in pe.PROFILES}) == len(pe.PROFILES)
 
 
-def test_pybamm_is_fed_the_profile_exactly_and_matches_battlab_within_half_a_millivolt(made, cell_file) -> None:
-    """PyBaMM's discharge capacity equals the integral of the zero-order-hold current, and its plain DFN is within
-    0.5 mV RMSE of battlab's on the same BPX file (measured 0.35 mV: the null case's model difference, above the
-    noise). An upper bound only: battlab closer to PyBaMM passes."""
+def test_every_catalog_cause_pybamm_can_express_has_two_cases_and_there_are_six_nulls_on_six_profiles() -> None:
+    from battlab import causes
+
+    by_cause: dict[str | None, list[pe.Case]] = {}
+    for c in pe.CASES.values():
+        by_cause.setdefault(c.cause, []).append(c)
+    assert set(by_cause) - {None} == set(causes.KEYS)
+    assert all(len(v) >= 2 for v in by_cause.values())
+    assert len({c.profile for c in by_cause[None]}) >= 6
+
+
+def test_a_log_whose_charge_is_not_pybamms_is_refused() -> None:
+    t = np.arange(0.0, 601.0)
+    i = np.where(t < 300.0, -12.5, 0.0)
+    truth = pe.Truth(t, np.full(t.size, 3.7), i, np.full(t.size, 298.15), pe.discharged(t, i), 0.0, 0.0)
+    case = pe.CASES["null_1"]
+    assert pe.check_charge(case, truth, i + 1e-4) < pe.CHARGE_TOL_LOG  # the tester's noise passes
+    with pytest.raises(RuntimeError, match="logged current"):
+        pe.check_charge(case, truth, i * 1.01)  # a 1 % gain the case does not declare
+    sensor = pe.CASES["sensor_gain"]
+    assert pe.check_charge(sensor, truth, 1.01 * i) < pe.CHARGE_TOL_LOG  # ... which the sensor case does
+    with pytest.raises(RuntimeError, match="not integrated exactly"):
+        pe.check_charge(case, dataclasses.replace(truth, charge_error_Ah=1e-3), i)
+
+
+def test_a_changed_case_definition_is_made_again(tmp_path: Path) -> None:
+    case = pe.CASES["contact_1p5"]
+    other = dataclasses.replace(case, effect=pe.Effect("contact", (("R", 1.4e-3),)))
+    assert case.key() != other.key()
+    assert case.key() == dataclasses.replace(case, size="another description").key()
+    for p in pe.paths(tmp_path, case.name).values():
+        p.write_text("{}")
+    pe.paths(tmp_path, case.name)["case"].write_text(f'{{"key": "{case.key()}"}}')
+    assert pe.cached(case, tmp_path) is not None
+    assert pe.cached(other, tmp_path) is None
+
+
+@pytest.mark.slow
+def test_pybamm_is_fed_the_profile_exactly_and_matches_battlab_within_a_millivolt(made, nmc_bpx) -> None:
+    """PyBaMM's discharge capacity equals the integrals of the current it was fed and of the logged current, and its
+    plain DFN is within 1 mV RMSE of battlab's on the same file (the null's model difference, at the noise; an upper
+    bound only: battlab closer to PyBaMM passes)."""
     import battlab
     from battlab import Cell
 
-    _, truth = made("null")
-    assert truth.charge_error_Ah < 1e-6
-    cell = Cell.from_bpx(cell_file)
-    res = battlab.simulate(cell, pe.profile(float(cell["Q_nom"])), soc0=pe.SOC0, ambient=pe.AMBIENT_K)
-    assert res.voltage.size == truth.voltage.size
-    rmse = 1e3 * float(np.sqrt(np.mean((res.voltage - truth.voltage) ** 2)))
-    assert rmse < 0.5, rmse
-    assert abs(float(res.T_core.max()) - float(truth.temperature.max())) < 0.5  # K: cooled, a 3 K rise
+    r = made(NULL)
+    assert r["charge_error_solver_Ah"] < pe.CHARGE_TOL_SOLVER and r["charge_error_log_Ah"] < pe.CHARGE_TOL_LOG
+    truth = np.load(r["paths"]["truth"])
+    cell = Cell.from_bpx(r["paths"]["cell"])
+    prof = pe.make_profile(pe.nominal_capacity(), SHORT)
+    res = battlab.simulate(cell, prof, soc0=SHORT.soc0, ambient=pe.AMBIENT_K)
+    assert res.voltage.size == truth["voltage"].size
+    rmse = 1e3 * float(np.sqrt(np.mean((res.voltage - truth["voltage"]) ** 2)))
+    assert rmse < 1.0, rmse
+    assert abs(float(res.T_core.max()) - float(truth["temperature"].max())) < 0.5  # K
 
 
-def _null_named_on_a_small_win() -> bool:
-    from battlab.diagnose import workflow
+@pytest.mark.slow
+def test_the_diagnosis_names_nothing_on_pybamms_plain_dfn(made, tmp_path) -> None:
+    r = made(NULL)
+    summary, _ = bench.diagnose_cli(r["paths"]["csv"], r["paths"]["cell"], tmp_path / "report")
+    assert summary["cause"] is None, (summary["cause"], summary["verdict"], summary["extension_gain"])
 
-    return workflow.MIN_GAIN < 0.1
+
+#: effect cases the diagnosis does not name yet, with why (measured on the 1 h profile)
+NOT_YET = {
+    "electrolyte_de25_k50": "no score test passes and 98 % of the residual (34 x the noise level) lies along the base "
+    "parameters' directions: the electrolyte's own base parameters (D_e, kappa) explain it, which does not name it yet",
+}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
-    "case",
-    [
-        pytest.param(
-            "null",
-            marks=pytest.mark.xfail(
-                _null_named_on_a_small_win(),
-                reason="PyBaMM's plain DFN differs from battlab's by 0.35 mV, twice the noise: a fitted current-sensor "
-                "gain wins 12 % on held-out data (0.41 -> 0.36 mV), which a 2 % naming rule takes for a cause",
-                strict=True,
-            ),
-        ),
-        "hysteresis",
-        "capacity_fade",
-    ],
+    "name",
+    [pytest.param(n, marks=pytest.mark.xfail(strict=False, reason=NOT_YET[n])) if n in NOT_YET else n for n in EFFECTS],
 )
-def test_the_diagnosis_of_pybamm_data_names_the_hidden_cause_or_nothing(case, made, cell_file, tmp_path) -> None:
-    """Through the CLI: the hidden cause named, or none named with the hidden one among those the data cannot tell;
-    never another cause (measured: hysteresis named, held-out RMSE 1.61 -> 0.37 mV; PyBaMM's reaction-limited SEI
-    named capacity_fade, 10.3 -> 1.6 mV)."""
-    csv, _ = made(case)
-    summary, _ = pe.diagnose_cli(csv, cell_file, tmp_path / "report")
-    s2 = summary["residual"]["s2"]
-    # the noise level is the log's own: the null's 0.35 mV model difference is a few times the noise (measured s²
-    # 5.1; bounded above only, as a battlab closer to PyBaMM lowers it), a 10 mV hysteresis far above it (135)
-    assert (s2 < 20.0) if case == "null" else (s2 > 20.0), s2
-    verdict = pe.judge(pe.CASES[case], summary)
-    assert verdict in ("right", "honest"), (verdict, summary["cause"], summary["ranking"][:3], summary["verdict"])
+def test_the_diagnosis_names_the_hidden_cause_of_pybamm_data(name, made, tmp_path) -> None:
+    """The catalog key of the hidden effect is the summary's ``cause``, and its fit predicts the held-out part at
+    least 30 % better than the better of the unrefitted cell and the base refit."""
+    r = made(name)
+    summary, _ = bench.diagnose_cli(r["paths"]["csv"], r["paths"]["cell"], tmp_path / "report")
+    assert summary["cause"] == pe.CASES[name].cause, (summary["cause"], summary["verdict"], summary["ranking"][:3])
+    _, _, gain = bench.held_out(summary)
+    assert gain is not None and gain >= bench.TARGET_GAIN, summary["extension_gain"]
