@@ -4,12 +4,14 @@
                                               [--temps 25,10,0] [--json OUT.json]
 
 Each test is predicted the way a user (or an outside check) predicts logged data with the cell alone:
-``battlab.simulate(cell, profile, soc0=1.0, ambient=T_K, v_limits=(2.0, 4.5))``, with ``T_K`` the temperature in
-the file's name (every test starts from the 1C charge to 4.2 V with a 50 mA cut-off, which is SOC 1 of a cell
-fitted by ``examples/panasonic/fit.sh``), and the initial temperature equal to that ambient (the simulate
-default). Printed per file: voltage RMSE [mV] over the whole test and up to 90 % of its discharged charge, the
-surface-temperature RMSE [K] against the logged ``Battery_Temp_degC``, the fraction of the test the prediction
-reached (it may stop at 2.0 V before the data do) and the simulation's wall time. RMSEs cover the reached part.
+``battlab.simulate(cell, profile, soc0=1.0, ambient=T_K, T0=T_start, v_limits=(2.0, 4.5))``, with ``T_K`` the
+chamber temperature (the file's mean ``Chamber_Temp_degC``, else the temperature in its name: the 10 and 0 °C
+files log none) and ``T_start`` the logged surface temperature at the first sample (the 10 °C HWFET starts at
+23.7 °C and rests an hour while it cools; every test starts from the 1C charge to 4.2 V with a 50 mA cut-off,
+which is SOC 1 of a cell fitted by ``examples/panasonic/fit.sh``). Printed per file: voltage RMSE [mV] over the
+whole test and up to 90 % of its discharged charge, the surface-temperature RMSE [K] against the logged
+``Battery_Temp_degC``, the fraction of the test the prediction reached (it may stop at 2.0 V before the data do) and
+the simulation's wall time. RMSEs cover the reached part.
 
 The profile is the logged current resampled to ``--dt`` [s] (charge-conserving bin averages; 0 = the logged
 samples). HPPC logs only the pulses and their rests; each logging gap (over 60 s) is filled with the constant
@@ -42,6 +44,17 @@ DATA = next(
 GAP_S = 60.0
 
 
+def conditions(path: Path) -> tuple[float, float]:
+    """(ambient, start temperature) [K] of a logged test: the chamber's mean temperature (else the one in the
+    file's name) and the surface temperature at its first sample (else the ambient)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        d = load_data(path)
+    ambient = d.ambient_K(default=273.15 + float(path.name.split("degC")[0]))
+    surf = d.temperature_K(SURFACE)
+    return ambient, float(surf[0]) if surf is not None and np.isfinite(surf[0]) else ambient
+
+
 def profile_of(path: Path, dt: float) -> tuple[Profile, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The logged test as a profile from its first sample, with the logged voltage [V], surface temperature [K],
     a mask of the samples to score (not inside a filled gap) and the discharged charge [Ah] at each sample."""
@@ -71,11 +84,11 @@ def rmse(a: np.ndarray) -> float:
 
 
 def score(cell: battlab.Cell, path: Path, dt: float) -> dict[str, float | str | None]:
-    """Predict one test from full charge at its nominal temperature and score voltage and surface temperature."""
-    degc = float(path.name.split("degC")[0])
+    """Predict one test from full charge at its chamber and start temperatures; score voltage and temperature."""
+    ambient, start = conditions(path)
     prof, v, temp, scored, q = profile_of(path, dt)
     t0 = time.perf_counter()
-    res = battlab.simulate(cell, prof, soc0=1.0, ambient=273.15 + degc, v_limits=(2.0, 4.5))
+    res = battlab.simulate(cell, prof, soc0=1.0, ambient=ambient, T0=start, v_limits=(2.0, 4.5))
     sec = time.perf_counter() - t0
     n = res.voltage.size
     ev = 1e3 * (res.voltage - v[:n])

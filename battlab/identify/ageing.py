@@ -120,3 +120,118 @@ def mean_state(per_file: Mapping[str, Mapping[str, Mapping[str, object]]], agein
         vals = [float(v[n]["value"]) for v in per_file.values() if n in v]  # type: ignore[arg-type]
         out[n] = float(np.mean(vals)) if vals else ageing.reference(n)
     return out
+
+
+# Ageing between test dates, from the open-circuit voltage: the same cell's OCV against the charge discharged from
+# full charge, measured on two dates, differs by a factor on that charge when the cell has lost capacity (lithium and
+# the active material holding it, together) between them.
+
+
+@dataclass(frozen=True)
+class CapacityRatio:
+    """How the OCV of test ``a`` against its discharged charge q [Ah] maps onto that of test ``b``:
+    V_a(q) = V_b(ratio q + shift) − offset, fitted over the common charge range. ``ratio`` > 1: cell ``a`` is emptier
+    at equal q, it has 1/ratio of ``b``'s capacity; ``offset`` [V]: a constant between the two (one measured after
+    discharges, the other a mean of both directions: the hysteresis); ``rmse_mV`` the fit's residual; ``*_se`` the
+    standard errors."""
+
+    ratio: float
+    ratio_se: float
+    shift_Ah: float
+    offset_V: float
+    rmse_mV: float
+    points: int
+
+
+def rest_points(
+    t: np.ndarray,
+    current: np.ndarray,
+    voltage: np.ndarray,
+    discharged: np.ndarray | None = None,
+    *,
+    min_rest_s: float = 600.0,
+    i_rest: float = 0.01,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The voltage [V] at the end of every rest of at least ``min_rest_s`` [s] that is followed by current, and the
+    charge discharged since the first sample, q [Ah]: ``discharged`` (e.g. from a logged Ah column, where the log has
+    gaps), else the integral of ``current`` (positive = charge, A)."""
+    t, current, voltage = (np.asarray(a, float) for a in (t, current, voltage))
+    if discharged is None:
+        q = -np.concatenate([[0.0], np.cumsum(current[:-1] * np.diff(t))]) / 3600.0
+    else:
+        q = np.asarray(discharged, float) - float(discharged[0])
+    rest = np.abs(current) < i_rest
+    ends = np.flatnonzero(rest[:-1] & ~rest[1:])
+    starts = np.flatnonzero(np.r_[True, ~rest[:-1]] & rest)
+    keep = [k for k in ends if t[k] - t[starts[starts <= k][-1]] >= min_rest_s]
+    return q[keep], voltage[keep]
+
+
+def capacity_ratio(q_a: np.ndarray, v_a: np.ndarray, q_b: np.ndarray, v_b: np.ndarray) -> CapacityRatio:
+    """Fit V_a(q) = V_b(ratio q + shift) − offset (:class:`CapacityRatio`) over the points of ``a`` inside ``b``'s
+    charge range; ``b`` is a curve (sorted or not), ``a`` may be scattered rest points."""
+    from scipy.optimize import least_squares
+
+    o = np.argsort(q_b)
+    qb, vb = np.asarray(q_b, float)[o], np.asarray(v_b, float)[o]
+    qa, va = np.asarray(q_a, float), np.asarray(v_a, float)
+    inside = (qa > qb[0]) & (qa < qb[-1])
+    if inside.sum() < 4:
+        raise InputError(f"capacity ratio: {int(inside.sum())} points in the common charge range; needs at least 4")
+    qa, va = qa[inside], va[inside]
+
+    def resid(p: np.ndarray) -> np.ndarray:
+        return np.interp(p[0] * qa + p[1], qb, vb) - p[2] - va
+
+    sol = least_squares(resid, [1.0, 0.0, 0.0])
+    s2 = float(np.mean(sol.fun**2)) * qa.size / max(qa.size - 3, 1)
+    cov = np.linalg.pinv(sol.jac.T @ sol.jac) * s2
+    return CapacityRatio(
+        ratio=float(sol.x[0]),
+        ratio_se=float(np.sqrt(cov[0, 0])),
+        shift_Ah=float(sol.x[1]),
+        offset_V=float(sol.x[2]),
+        rmse_mV=float(1e3 * np.sqrt(np.mean(sol.fun**2))),
+        points=int(qa.size),
+    )
+
+
+@dataclass(frozen=True)
+class LinearFade:
+    """Capacity relative to a reference date falling linearly with the days since it: c(d) = 1 − rate (d − d_ref).
+
+    Calendar days, not charge throughput: the shared files log each test's own charge but not the cycling between
+    tests (conditioning, capacity checks, the other tests of the campaign), so the throughput between two dates is not
+    known from them, while every file's first time stamp is."""
+
+    reference: str  # ISO date of the reference (capacity 1)
+    rate_per_day: float
+    rate_se: float
+
+    def capacity(self, date: str) -> float:
+        """The capacity factor on ``date`` (ISO) relative to the reference date's."""
+        return 1.0 - self.rate_per_day * days_between(self.reference, date)
+
+
+def days_between(a: str, b: str) -> float:
+    """Days from ISO date (or date-time) ``a`` to ``b``."""
+    from datetime import datetime
+
+    return (datetime.fromisoformat(b) - datetime.fromisoformat(a)).total_seconds() / 86400.0
+
+
+def fade_from(earlier: str, later: str, ratio: CapacityRatio) -> LinearFade:
+    """The linear fade from the OCV comparison ``ratio`` of a test on date ``earlier`` (its ``a``) with one on
+    ``later`` (its ``b``), referred to ``later``: the earlier cell had 1/ratio of the later one's capacity."""
+    days = days_between(earlier, later)
+    if days <= 0:
+        raise InputError(f"fade: {earlier} is not before {later}")
+    return LinearFade(later, (1.0 / ratio.ratio - 1.0) / days, ratio.ratio_se / ratio.ratio**2 / days)
+
+
+def cell_on(cell: Cell, fade: LinearFade, date: str) -> Cell:
+    """``cell`` (measured on ``fade.reference``) as it was or will be on ``date``: its capacity (electrode area and
+    lithium together, so its OCV against SOC is unchanged) times ``fade.capacity(date)``."""
+    c = fade.capacity(date)
+    why = f"aged to {date} from {fade.reference} at {100 * fade.rate_per_day:.4f} %/day (battlab.identify.ageing)"
+    return aged_cell(cell, c * cell.lithium_moles(), c, why)

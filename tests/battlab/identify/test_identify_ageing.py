@@ -158,3 +158,37 @@ def test_bad_per_file_ageing_is_one_line(tmp_path, names: str, n_files: int, mes
     assert len(r.output.strip().splitlines()) == 1
     with pytest.raises(InputError, match="expected some of n_Li, capacity"):
         A.parse_names("")
+
+
+def test_a_capacity_ratio_between_two_dates_is_found_from_rest_points() -> None:
+    """Rest voltages of a cell with 2 % more capacity (and 6 mV of hysteresis below) map onto the later curve."""
+    q_b = np.linspace(0.0, 2.8, 400)
+    v_b = 4.18 - 0.35 * q_b - 0.05 * np.sin(2.0 * q_b) - 0.2 * np.exp(4.0 * (q_b - 2.8))
+    q_a = np.linspace(0.1, 2.5, 40)
+    v_a = np.interp(q_a / 1.02, q_b, v_b) - 0.006
+    r = A.capacity_ratio(q_a, v_a, q_b, v_b)
+    assert r.ratio == pytest.approx(1 / 1.02, abs=2e-4)
+    assert r.offset_V == pytest.approx(0.006, abs=2e-4)
+    fade = A.fade_from("2017-03-11", "2017-05-08", r)
+    assert fade.capacity("2017-03-11") == pytest.approx(1.02, abs=3e-4)
+    assert fade.capacity("2017-05-08") == 1.0
+    assert fade.capacity("2017-06-05") < 1.0  # a later date the comparison did not see: less capacity
+
+
+def test_rest_points_are_the_ends_of_long_rests_at_the_logged_charge() -> None:
+    t = np.arange(0.0, 8000.0)
+    i = np.where((t % 4000) < 1000, -1.0, 0.0)  # 1000 s at 1 A, then 3000 s rest, twice
+    v = 3.8 - 0.1 * (t > 1000)
+    q, vr = A.rest_points(t, i, v)
+    assert q.size == 1 and q[0] == pytest.approx(1000 / 3600, rel=1e-3)  # the last rest is not followed by current
+    q2, _ = A.rest_points(t, i, v, discharged=np.full(t.size, 0.5) + 0.1 * (t > 3000))
+    assert q2[0] == pytest.approx(0.1)
+
+
+def test_a_cell_on_another_date_keeps_its_ocv_against_soc() -> None:
+    cell = battlab.Cell.load("nca18650")
+    fade = A.LinearFade("2017-05-08", 3e-4, 1e-5)
+    older = A.cell_on(cell, fade, "2017-03-20")
+    assert older.capacity() == pytest.approx(cell.capacity() * fade.capacity("2017-03-20"), rel=2e-3)
+    for soc in (0.1, 0.5, 0.9):
+        assert float(older.ocv(soc)) == pytest.approx(float(cell.ocv(soc)), abs=1e-4)

@@ -124,3 +124,64 @@ def test_the_shipped_files_have_no_pause(shared_data: Path, name: str) -> None:
         d = read_panasonic(path)
     assert _pause_warnings(caught) == [] and "pauses" not in d.meta
     assert d.columns[TIME].size == d.columns[VOLTAGE].size == d.columns[CURRENT].size
+
+
+def _slow_test(tmp_path: Path, offset: float, name: str = "25degC_C20_OCV.mat") -> Path:
+    """A C/20-like test: rest, discharge at 0.145 A for 18 h, rest, charge back the same charge at 0.145 A, with the
+    logged current read ``offset`` [A] off while it flows."""
+    t = np.arange(0.0, 40 * 3600.0, 60.0)
+    i = np.zeros(t.size)
+    dis = (t >= 600) & (t < 600 + 18 * 3600)
+    chg = (t >= 19 * 3600) & (t < 37 * 3600)
+    i[dis], i[chg] = -0.145, 0.145
+    v = 3.7 + 0.4 * np.cumsum(i * 60.0) / (0.145 * 18 * 3600)
+    logged = np.where(i != 0, i + offset, 0.0)
+    start = dt.datetime(2017, 5, 8, 13, 0, 0)
+    stamps = [_stamp(start + dt.timedelta(seconds=float(s))) for s in t]
+    fields = {"Time": t, "Voltage": v, "Current": logged, "Ah": np.cumsum(logged * 60.0) / 3600.0}
+    fields |= {"Battery_Temp_degC": np.full(t.size, 25.0), "Chamber_Temp_degC": np.full(t.size, 25.0)}
+    return _write(tmp_path / name, fields, stamps)
+
+
+def test_a_slow_tests_current_offset_is_found_and_said_not_corrected(tmp_path: Path) -> None:
+    from battlab.io.panasonic import with_current_offset
+
+    path = _slow_test(tmp_path, -0.008)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        d = read_panasonic(path)
+    said = [str(w.message) for w in caught if "current offset" in str(w.message)]
+    assert len(said) == 1 and "current offset of -8." in said[0]
+    assert d.meta["current_offset_A"] == pytest.approx(0.008, rel=0.03)
+    assert np.min(d.columns[CURRENT]) == pytest.approx(-0.153)  # as logged
+    fixed = with_current_offset(d, d.meta["current_offset_A"])
+    assert np.min(fixed.columns[CURRENT]) == pytest.approx(-0.145, abs=2e-4)
+    assert fixed.columns[NET_CAPACITY][-1] == pytest.approx(0.0, abs=5e-3)  # was -0.29 Ah
+
+
+def test_a_balanced_slow_test_says_nothing(tmp_path: Path) -> None:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        d = read_panasonic(_slow_test(tmp_path, 0.0))
+    assert not [w for w in caught if "current offset" in str(w.message)]
+    assert "current_offset_A" not in d.meta
+
+
+def test_a_chamber_column_far_from_the_file_names_temperature_is_said_and_dropped(tmp_path: Path) -> None:
+    from battlab.io.logged import AMBIENT
+
+    path = _slow_test(tmp_path, 0.0, name="10degC_C20_OCV.mat")  # logs 25 degC in a 10 degC test
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        d = read_panasonic(path)
+    said = [str(w.message) for w in caught if "Chamber_Temp_degC" in str(w.message)]
+    assert len(said) == 1 and "reads 25 degC" in said[0] and "10 degC" in said[0]
+    assert AMBIENT not in d.columns
+    assert d.ambient_K() == pytest.approx(283.15)
+
+
+def test_the_shared_c20_test_has_a_current_offset_of_about_10_mA(shared_data: Path) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        d = read_panasonic(shared_data / "panasonic-18650pf" / "25degC_C20_OCV.mat")
+    assert 0.008 < d.meta["current_offset_A"] < 0.012
