@@ -87,15 +87,16 @@ def _replay(prog: native.LUProgram, jnz: np.ndarray, b: np.ndarray) -> np.ndarra
 def test_lu_program_solves_the_step_jacobian_at_another_state(cell: battlab.Cell) -> None:
     """The pivot order analysed at one state still solves the Newton matrix at another (static pivoting)."""
     model = DFN(cell, Mesh(n_n=4, n_s=3, n_p=4, n_r=5))
-    fs, jsp, _ = native._functions(model)
+    fs, patterns = native._functions(model)
+    jsp = patterns.jac
     jac = {f.name(): f for f in fs}["bl_jac"]
     th = np.array([cell.normalised(n) for n in parameters.NAMES])
     x0 = solver.initial_state(model, 0.5, th, 298.15)
     y = np.concatenate([x0, solver.guess_algebraic(model, x0, 2.7)])
-    prog = native.analyse(jsp, np.array(jac(y, x0, x0, [1.0, 0.0, 2.7, 298.15], th).nonzeros()))
+    prog = native.analyse(jsp, np.array(jac(y, x0, x0, [1.0, 0.0, 2.7, 298.15], th)[0].nonzeros()))
     x1 = solver.initial_state(model, 0.2, th, 310.0)
     y1 = np.concatenate([x1, solver.guess_algebraic(model, x1, -5.0)])
-    jnz = np.array(jac(y1, x1, x1, [0.3, 1.5, -5.0, 310.0], th).nonzeros())
+    jnz = np.array(jac(y1, x1, x1, [0.3, 1.5, -5.0, 310.0], th)[0].nonzeros())
     A = sp.csc_matrix((jnz, np.array(jsp.row()), np.array(jsp.colind())), shape=(jsp.size1(), jsp.size1()))
     b = np.random.default_rng(1).standard_normal(jsp.size1())
     x = _replay(prog, jnz, b)
