@@ -2,7 +2,11 @@
 Newton, a static-pivot sparse LU and the sensitivity solves, and gcc turns both into one shared library.
 
 Build once per (cell, mesh, option set: thermal option and extensions), cached on disk under ``$BATTLAB_CACHE`` (default
-``~/.cache/battlab``) by a hash of the generated source, so a fit that changes θ̄ never recompiles (θ̄ is an input).
+``~/.cache/battlab``) by a hash of the generated source, so a fit that changes θ̄ never recompiles (θ̄ is an input) and
+cells whose differences do not reach the equations share one library. A small index file maps what the source is made
+from (the cell's values except θ̄, mesh, options, the model's source files, CasADi's version, compiler flags,
+processor) to that library, so a process that meets a known model loads it without generating the code again: what
+Python needs of the functions (sparsity, a Jacobian for the pivot order) comes from the library itself.
 
 The LU program: the pivot order comes from SuperLU (COLAMD columns, partial pivoting) on the Jacobian at a
 representative state; the fill pattern of that order is computed symbolically, and the numeric factorisation
@@ -15,6 +19,7 @@ depends on what ran before it in the process.
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
 import logging
 import os
@@ -145,7 +150,7 @@ class Patterns:
         )
 
 
-def _functions(model: DFN) -> tuple[list[ca.Function], Patterns]:
+def _functions(model: DFN) -> list[ca.Function]:
     lay = model.layout
     nx, ny = lay.nx, lay.ny
     y = ca.SX.sym("y", ny)
@@ -162,14 +167,17 @@ def _functions(model: DFN) -> tuple[list[ca.Function], Patterns]:
     Jth = ca.jacobian(R, th)
     sto = eq["sto_surf"]
     o = ca.vertcat(eq["V"], eq["T1"], eq["T2"], ca.mmin(sto), ca.mmax(sto))
+    cse = {"cse": True}  # common subexpressions once: the Jacobians' code a third smaller, faster to build and run
     fs = [
-        ca.Function("bl_res", [y, xn, xp, u, th], [R]),
-        ca.Function("bl_jac", [y, xn, xp, u, th], [Jy, Jth]),
-        ca.Function("bl_g", [y, u, th], [eq["g"]]),
-        ca.Function("bl_out", [y, u, th], [o]),
-        ca.Function("bl_outj", [y, u, th], [ca.densify(ca.jacobian(eq["V"], y)), ca.densify(ca.jacobian(eq["V"], th))]),
+        ca.Function("bl_res", [y, xn, xp, u, th], [R], cse),
+        ca.Function("bl_jac", [y, xn, xp, u, th], [Jy, Jth], cse),
+        ca.Function("bl_g", [y, u, th], [eq["g"]], cse),
+        ca.Function("bl_out", [y, u, th], [o], cse),
+        ca.Function(
+            "bl_outj", [y, u, th], [ca.densify(ca.jacobian(eq["V"], y)), ca.densify(ca.jacobian(eq["V"], th))], cse
+        ),
     ]
-    return fs, Patterns.of(Jy.sparsity(), Jth.sparsity(), nx)
+    return fs
 
 
 @dataclass
@@ -286,26 +294,27 @@ class NativeStepper:
     """A compiled model: ``run`` advances a schedule of steps and writes the samples' outputs."""
 
     def __init__(self, model: DFN) -> None:
-        t0 = time.perf_counter()
         self.model = model
-        fs, self.patterns = _functions(model)
-        self._f = {f.name(): f for f in fs}
-        units = _sources(fs)
-        src = "\n".join(text for _, text in units)
-        debug = "".join(f" {f}" for f in _debug_flags())
-        digest = hashlib.sha256((src + debug + " ".join(CFLAGS) + _machine_tag()).encode()).hexdigest()[:20]
-        lib_path = cache_dir() / f"bl_{digest}.so"
-        self.generate_seconds = time.perf_counter() - t0
-        t1 = time.perf_counter()
-        if not lib_path.is_file():
-            log.info(
-                "compiling the model for cell %r (first use of this cell and mesh here; about 10-30 s, cached in %s)",
-                model.cell.name,
-                lib_path.parent,
-            )
-            _compile(units, lib_path)
-        self.compile_seconds = time.perf_counter() - t1
+        self.generate_seconds = self.compile_seconds = 0.0
+        index = cache_dir() / f"key_{_fingerprint(model)}"
+        lib_path = _indexed(index)
+        if lib_path is None:
+            t0 = time.perf_counter()
+            units = _sources(_functions(model))
+            digest = hashlib.sha256("\n".join(text for _, text in units).encode()).hexdigest()[:24]
+            lib_path = cache_dir() / f"bl_{digest}.so"
+            self.generate_seconds = time.perf_counter() - t0
+            if not lib_path.is_file():
+                log.info(
+                    "compiling the model for cell %r (first use of this cell and mesh; about 10-30 s, cached in %s)",
+                    model.cell.name,
+                    lib_path.parent,
+                )
+                _compile(units, lib_path)
+                self.compile_seconds = time.perf_counter() - t0 - self.generate_seconds
+            _write_atomic(index, lib_path.name)
         self.lib = ctypes.CDLL(str(lib_path))
+        self.patterns = Patterns.of(_sparsity(self.lib, "bl_jac", 0), _sparsity(self.lib, "bl_jac", 1), model.layout.nx)
         self.lib.bl_run.restype = _INT
         P, I_, D = ctypes.c_void_p, _INT, ctypes.c_double
         # pointers as addresses: the arrays are contiguous (float64, int32 where the C code reads int)
@@ -343,17 +352,20 @@ class NativeStepper:
     # --- LU analysis ---
     def outputs(self, y: np.ndarray, current: float, T_amb: float, th: np.ndarray) -> np.ndarray:
         """[V, T1, T2, sto_min, sto_max] at state ``y`` with ``current`` [A, + = discharge] and ``T_amb`` [K]."""
-        return np.asarray(self._f["bl_out"](y, np.array([0.0, 0.0, current, T_amb]), th)).ravel()
+        return _call(self.lib, "bl_out", [y, np.array([0.0, 0.0, current, T_amb]), th])[0]
+
+    def jacobian(self, y: np.ndarray, xn: np.ndarray, xp: np.ndarray, u: np.ndarray, th: np.ndarray) -> np.ndarray:
+        """The nonzeros of the step Jacobian dR/dy (CCS, ``patterns.jac``) at a state, u = [h, ω, I_dis, T_amb]."""
+        return _call(self.lib, "bl_jac", [y, xn, xp, u, th])[0]
 
     def analyse_at(self, y: np.ndarray, xn: np.ndarray, xp: np.ndarray, u: np.ndarray, th: np.ndarray) -> Pivots:
         """A pivot program for the step Jacobian at a state (when the one in use meets a vanishing pivot)."""
-        vals = np.array(self._f["bl_jac"](y, xn, xp, u, th)[0].nonzeros())
-        return self._pivots(analyse(self.patterns.jac, vals), zero=False)
+        return self._pivots(analyse(self.patterns.jac, self.jacobian(y, xn, xp, u, th)), zero=False)
 
     def analyse_zero_at(self, y: np.ndarray, u: np.ndarray, th: np.ndarray) -> Pivots:
         """A pivot program for the algebraic block dg/dz at a state (zero-length solves; ``u[0]`` = h = 0)."""
         x = y[: self.model.layout.nx]
-        vals = np.array(self._f["bl_jac"](y, x, x, u, th)[0].nonzeros())[self.patterns.gz.at]
+        vals = self.jacobian(y, x, x, u, th)[self.patterns.gz.at]
         return self._pivots(analyse(self.patterns.gz.sparsity(self.model.layout.nz), vals), zero=True)
 
     def base_pivots(self, th: np.ndarray) -> PivotSet:
@@ -547,6 +559,87 @@ class NativeStepper:
         samples.next = int(ints[0])
         control.n = int(ints[3])
         return int(done), int(ints[1]), int(ints[2])
+
+
+_LL = ctypes.c_longlong  # casadi_int in the generated code
+
+
+def _sparsity(lib: ctypes.CDLL, name: str, i: int) -> ca.Sparsity:
+    """Output ``i``'s sparsity of a generated function, from the library (CasADi's compressed form: rows, columns,
+    then 1 for dense or the column pointers and rows)."""
+    fn = getattr(lib, f"{name}_sparsity_out")
+    fn.restype, fn.argtypes = ctypes.POINTER(_LL), [_LL]
+    p = fn(i)
+    n_row, n_col = int(p[0]), int(p[1])
+    if p[2] == 1:  # dense (a sparse pattern's column pointers start at 0)
+        return ca.Sparsity.dense(n_row, n_col)
+    colind = [int(p[2 + k]) for k in range(n_col + 1)]
+    row = [int(p[3 + n_col + k]) for k in range(colind[-1])]
+    return ca.Sparsity(n_row, n_col, colind, row)
+
+
+def _call(lib: ctypes.CDLL, name: str, inputs: list[np.ndarray]) -> list[np.ndarray]:
+    """Evaluate a generated function of the library (its C interface): the nonzeros of each output."""
+    fn, work = getattr(lib, name), getattr(lib, f"{name}_work")
+    n_out = getattr(lib, f"{name}_n_out")
+    n_out.restype = _LL
+    sizes = [_LL() for _ in range(4)]
+    work(*(ctypes.byref(s) for s in sizes))
+    n_arg, n_res, n_iw, n_w = (max(int(s.value), 1) for s in sizes)
+    args = [_f64(np.ravel(a)) for a in inputs]
+    outs = [np.zeros(_sparsity(lib, name, i).nnz()) for i in range(int(n_out()))]
+    arg = (ctypes.c_void_p * n_arg)(*(_addr(a) for a in args))
+    res = (ctypes.c_void_p * n_res)(*(_addr(o) for o in outs))
+    iw, w = np.zeros(n_iw, dtype=np.int64), np.zeros(n_w)
+    if fn(arg, res, ctypes.c_void_p(_addr(iw)), ctypes.c_void_p(_addr(w)), 0):
+        raise RuntimeError(f"compiled model: {name} failed")
+    return outs
+
+
+def _fingerprint(model: DFN) -> str:
+    """What the library is built from: the cell's values except θ̄ (and which extensions are on), the mesh, the
+    option set, the source of the model and its code generation, CasADi's version, compiler flags, processor."""
+    h = hashlib.sha256()
+    for part in (
+        model.cell.static_hash(),
+        repr(model.mesh),
+        repr(model.options),
+        ca.__version__,
+        " ".join((*CFLAGS, *_debug_flags())),
+        _machine_tag(),
+        _source_digest(),
+    ):
+        h.update(part.encode() + b"\0")
+    return h.hexdigest()[:24]
+
+
+def _indexed(index: Path) -> Path | None:
+    """The library an index file names, if both are there."""
+    try:
+        lib = index.with_name(index.read_text().strip())
+    except OSError:
+        return None
+    return lib if lib.name.startswith("bl_") and lib.is_file() else None
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    part = path.with_name(f"{path.name}.{os.getpid()}.{threading.get_ident()}.part")
+    part.write_text(text)
+    os.replace(part, path)
+
+
+@functools.cache
+def _source_digest() -> str:
+    """SHA-256 of every source file of the package (the generated code depends on the model, the cell, its function
+    expressions, the parameter specifications and the causes' extension submodels; hashing them all cannot miss a
+    new dependency, and a changed file costs one code generation, not a compile, when the code comes out the
+    same)."""
+    root = Path(__file__).resolve().parents[1]
+    files = sorted(root.rglob("*.py")) + sorted(root.rglob("*.c"))
+    h = hashlib.sha256()
+    for f in files:
+        h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()
 
 
 def _addr(a: np.ndarray) -> int:

@@ -91,7 +91,8 @@ static void call(casadi_fn f, int kind, const double *a0, const double *a1, cons
   (void)kind;
 }
 
-/* numeric LU on the fixed program; returns 0 or -1 on a tiny pivot */
+/* numeric LU on the fixed program; returns 0 or -1 on a tiny pivot. Each pivot's slot then holds its reciprocal
+   (the solves multiply: a division on their dependency chain costs about ten multiplications) */
 static int lu_factor(const Problem *P, const double *jnz, double *a) {
   int k, l, u, o = 0;
   double anorm = 0.0;
@@ -105,7 +106,9 @@ static int lu_factor(const Problem *P, const double *jnz, double *a) {
     double p = a[P->piv[k]];
     /* a pivot that (nearly) vanished: the stored pivot order no longer suits this matrix */
     if (!(fabs(p) > 1e-14 * anorm) || !isfinite(p)) return -1;
-    for (l = P->lptr[k]; l < P->lptr[k + 1]; ++l) a[P->lslot[l]] /= p;
+    p = 1.0 / p;
+    a[P->piv[k]] = p;
+    for (l = P->lptr[k]; l < P->lptr[k + 1]; ++l) a[P->lslot[l]] *= p;
     for (l = P->lptr[k]; l < P->lptr[k + 1]; ++l) {
       double lik = a[P->lslot[l]];
       for (u = P->uptr[k]; u < P->uptr[k + 1]; ++u) a[P->upd[o++]] -= lik * a[P->uslot[u]];
@@ -126,7 +129,7 @@ static void lu_solve(const Problem *P, const double *a, double *b, double *c) {
       for (l = P->lptr[k]; l < P->lptr[k + 1]; ++l) c[P->lrow[l]] -= a[P->lslot[l]] * ck;
   }
   for (k = n - 1; k >= 0; --k) {
-    double ck = c[k] / a[P->piv[k]];
+    double ck = c[k] * a[P->piv[k]];
     c[k] = ck;
     if (ck != 0.0)
       for (l = P->ucptr[k]; l < P->ucptr[k + 1]; ++l) c[P->ucrow[l]] -= a[P->ucslot[l]] * ck;
@@ -150,7 +153,7 @@ static void lu_solve_multi(const Problem *P, const double *a, double *B, double 
   }
   for (k = n - 1; k >= 0; --k) {
     double *ck = C + (size_t)k * ns;
-    double inv = 1.0 / a[P->piv[k]];
+    double inv = a[P->piv[k]];
     for (j = 0; j < ns; ++j) ck[j] *= inv;
     for (l = P->ucptr[k]; l < P->ucptr[k + 1]; ++l) {
       double v = a[P->ucslot[l]];
