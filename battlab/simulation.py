@@ -6,6 +6,7 @@ This is the one place where the sign convention changes: the public API, files a
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -100,8 +101,7 @@ def simulate(
     mesh = mesh or Mesh()
     settings = settings or solver.Settings()
     ns = len(names)
-    theta_bar = cell.theta_bar()
-    all_names = cell.parameter_names()
+    theta_bar, all_names = _parameters(cell)
     sel = [all_names.index(n) for n in names]
     vmin, vmax = v_limits or (float(cell["V_min"]), float(cell["V_max"]))
     if not (np.isfinite(vmin) and np.isfinite(vmax) and vmin < vmax):
@@ -145,6 +145,20 @@ def simulate(
         },
         steps=traj.steps,
     )
+
+
+#: per cell (an immutable value): θ̄ and the names of its entries
+_THETA: weakref.WeakKeyDictionary[Cell, tuple[np.ndarray, tuple[str, ...]]] = weakref.WeakKeyDictionary()
+
+
+def _parameters(cell: Cell) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The cell's θ̄ (a read-only array) and parameter names, computed once per cell."""
+    found = _THETA.get(cell)
+    if found is None:
+        th = cell.theta_bar()
+        th.flags.writeable = False
+        found = _THETA[cell] = (th, cell.parameter_names())
+    return found
 
 
 def check_sensitivities(cell: Cell, names: Sequence[str]) -> tuple[str, ...]:

@@ -25,6 +25,7 @@ same compiled functions serve any parameter values and give derivatives w.r.t. �
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import casadi as ca
 import numpy as np
@@ -47,30 +48,34 @@ class Layout:
     extra: tuple[tuple[str, int], ...] = ()  #: extensions' differential states (key, count), after T₂
     extra_z: tuple[tuple[str, int], ...] = ()  #: extensions' algebraic states (key, count), after i⁺
 
-    @property
+    @cached_property
     def n_sn(self) -> int:
         return self.mesh.n_n * self.mesh.n_r
 
-    @property
+    @cached_property
     def n_sp(self) -> int:
         return self.mesh.n_p * self.mesh.n_r
 
-    @property
+    @cached_property
     def nx(self) -> int:
         """Differential states: θ⁻ shells, θ⁺ shells, c_e, T₁ − T_ref, T₂ − T_ref, the extensions' states."""
         return self.n_sn + self.n_sp + self.mesh.n_x + 2 + sum(n for _, n in self.extra)
 
-    @property
+    @cached_property
     def nz(self) -> int:
         """Algebraic states: φ_s⁻, φ_s⁺, φ_e, i⁻, i⁺, the extensions' algebraic states."""
         m = self.mesh
         return 2 * (m.n_n + m.n_p) + m.n_x + sum(n for _, n in self.extra_z)
 
-    @property
+    @cached_property
     def ny(self) -> int:
         return self.nx + self.nz
 
     def slices(self) -> dict[str, slice]:
+        return dict(self._slices)
+
+    @cached_property
+    def _slices(self) -> dict[str, slice]:
         m = self.mesh
         out: dict[str, slice] = {}
         pos = 0
@@ -120,6 +125,23 @@ class DFN:
         self.xi_f = mesh.radial_faces()
         self.xi_c = 0.5 * (self.xi_f[1:] + self.xi_f[:-1])
         self.vol = (self.xi_f[1:] ** 3 - self.xi_f[:-1] ** 3) / 3.0  # shell volumes / R³
+
+    @cached_property
+    def stoichiometry_window(self) -> tuple[float, float, float, float]:
+        """The cell's (θ⁻ at 0 %, θ⁻ at 100 %, θ⁺ at 0 %, θ⁺ at 100 %), solved once per model: it depends on values
+        the model is built for (lithium inventory, capacities, potentials), never on θ̄."""
+        return self.cell.stoichiometry_window()
+
+    @cached_property
+    def _ocp(self) -> ca.Function:
+        s_n, s_p = ca.SX.sym("s_n"), ca.SX.sym("s_p")
+        U = [self.cell.fn("U_n", s_n, backend="casadi"), self.cell.fn("U_p", s_p, backend="casadi")]
+        return ca.Function("ocp", [s_n, s_p], U)
+
+    def ocp(self, sto_n: float, sto_p: float) -> tuple[float, float]:
+        """(U⁻(θ⁻), U⁺(θ⁺)) at T_ref [V], compiled once per model (a start state's guess needs them per run)."""
+        un, up = self._ocp(sto_n, sto_p)
+        return float(un), float(up)
 
     # --- parameters -----------------------------------------------------------------------------------
     @property

@@ -130,9 +130,7 @@ class LiveCell:
         if code in (-2, -5):  # a pivot vanished: a new pivot order at this state, then retry from the start
             self._y, self._xp = y0, xp0
             if code == -5:
-                zero = self._stepper.analyse_at(
-                    self._y, self._y[: len(xp0)], self._xp, np.array([0.0, 0.0, I_dis, ambient]), self._theta
-                )
+                zero = self._stepper.analyse_zero_at(self._y, np.array([0.0, 0.0, I_dis, ambient]), self._theta)
                 self._pivots = self._pivots.replace(zero=zero)
             else:
                 u = np.array([max(hs[-1], 1e-3), 0.0, I_dis, ambient])

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import threading
 import time
+import weakref
 
 import numpy as np
 
@@ -63,6 +64,8 @@ __all__ = [
 
 _NATIVE: dict[tuple, object] = {}
 _NATIVE_BUILD = threading.Lock()
+#: per cell (an immutable value) the part of the compiled model's key it gives: its static hash is a JSON dump
+_STATIC: weakref.WeakKeyDictionary[Cell, str] = weakref.WeakKeyDictionary()
 
 
 def native_stepper(cell: Cell, mesh: Mesh, isothermal: bool):  # -> NativeStepper
@@ -71,7 +74,10 @@ def native_stepper(cell: Cell, mesh: Mesh, isothermal: bool):  # -> NativeSteppe
     from battlab.model.extensions import ModelOptions
     from battlab.model.native import NativeStepper
 
-    key = (cell.static_hash(), mesh, ModelOptions.of(cell, isothermal))
+    static = _STATIC.get(cell)
+    if static is None:
+        static = _STATIC[cell] = cell.static_hash()
+    key = (static, mesh, ModelOptions.of(cell, isothermal))
     with _NATIVE_BUILD:
         if key not in _NATIVE:
             _NATIVE[key] = NativeStepper(DFN(cell, mesh, isothermal=isothermal))
@@ -203,7 +209,7 @@ def run_native(
         if reanalysed != (pos, code):
             if code == -5:
                 u0 = np.array([0.0, 0.0, I_dis[m] if right_limit else cur[pos], T_amb])
-                pivots = pivots.replace(zero=stepper.analyse_at(y, y[:nx], xp, u0, th))
+                pivots = pivots.replace(zero=stepper.analyse_zero_at(y, u0, th))
             else:
                 u1 = np.array([max(h[pos], 1e-3), w[pos], cur[pos], T_amb])
                 pivots = pivots.replace(step=stepper.analyse_at(y, y[:nx], xp, u1, th))
@@ -334,7 +340,7 @@ def _adaptive(
         control.state[6] = 1.0  # the step starts from the state kept in the history (a right limit)
         if code == -5:
             u0 = np.array([0.0, 0.0, samples.current[m], T_amb])
-            pivots = pivots.replace(zero=stepper.analyse_at(y, y[:nx], xp, u0, th))
+            pivots = pivots.replace(zero=stepper.analyse_zero_at(y, u0, th))
         else:
             u1 = np.array([max(float(control.state[1]), 1e-3), 0.0, segments.current[k], T_amb])
             pivots = pivots.replace(step=stepper.analyse_at(y, y[:nx], xp, u1, th))

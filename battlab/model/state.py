@@ -8,6 +8,7 @@ import numpy as np
 
 from battlab import parameters
 from battlab.model.dfn import C_SCALE, DFN
+from protocols.errors import InputError
 
 NP = len(parameters.DYNAMIC)
 NEWTON_FAIL = 1e-6  #: a step whose scaled residual stays above this has failed
@@ -88,7 +89,12 @@ def initial_state(
     T = T0."""
     lay = model.layout
     sl = lay.slices()
-    sto_n, sto_p = model.cell.stoichiometry(soc0) if sto0 is None else sto0
+    if sto0 is None:
+        if not 0.0 <= soc0 <= 1.0:
+            raise InputError(f"SOC must be in [0, 1], got {soc0}")
+        n0, n1, p0, p1 = model.stoichiometry_window
+        sto0 = (n0 + soc0 * (n1 - n0), p0 + soc0 * (p1 - p0))  # eq. 20, as Cell.stoichiometry
+    sto_n, sto_p = sto0
     ce0 = parameters.SPECS["c_e0"].denormalise(float(theta_bar[parameters.NAMES.index("c_e0")]))
     x = np.zeros(lay.nx)
     x[sl["sn"]] = sto_n
@@ -108,7 +114,7 @@ def guess_algebraic(model: DFN, x: np.ndarray, I_dis: float) -> np.ndarray:
     sl = lay.slices()
     sn = float(np.mean(x[sl["sn"]]))
     sp = float(np.mean(x[sl["sp"]]))
-    Un, Up = float(cell.fn("U_n", sn)), float(cell.fn("U_p", sp))
+    Un, Up = model.ocp(sn, sp)
     z = np.zeros(lay.nz)
     off = lay.nx
     z[sl["phis_n"].start - off : sl["phis_n"].stop - off] = 0.0

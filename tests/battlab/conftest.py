@@ -1,35 +1,65 @@
-"""Fixtures shared by battlab's tests: logged data from the virtual truth, and reading logs in another process."""
+"""Fixtures shared by battlab's tests: logged data from the virtual truth, and reading logs in another process.
+
+The data are pure functions of their arguments (seeded noise): each is simulated once per test session and written
+afresh wherever a test asks for it.
+"""
 
 from __future__ import annotations
 
+import functools
 import json
 import subprocess
 import sys
 import textwrap
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 
-def _virtual_csv(tmp_path: Path, pid: int, seed: int) -> str:
-    """Library profile ``pid`` on the virtual truth (R_s of both electrodes moved) with seeded noise, logged at
-    25 degC as a BDF CSV; its path."""
+@functools.cache
+def _library() -> Any:
+    """The OED input library (built once per session: about 2 s)."""
+    from protocols import Library
+
+    return Library.build()
+
+
+def _frozen(cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Read-only copies of the columns (a cached result that no test can change)."""
+    out = {k: np.array(v) for k, v in cols.items()}
+    for v in out.values():
+        v.flags.writeable = False
+    return out
+
+
+@functools.cache
+def _virtual_data(pid: int, seed: int) -> tuple[dict[str, np.ndarray], float | None]:
+    """The columns of :func:`_virtual_csv` and the profile's start SOC."""
     import battlab
     from battlab import parameters as P
     from battlab.identify.forward import ForwardModel
     from battlab.identify.virtual import synthesize
-    from battlab.io.bdf import write_bdf_csv
-    from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE, LoggedData
-    from protocols import Library
+    from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE
 
     cell = battlab.Cell.load("nca18650")
     truth = cell.with_values(R_s_n=P.SPECS["R_s_n"].truth, R_s_p=P.SPECS["R_s_p"].truth)
-    prof = Library.build()[pid]
+    prof = _library()[pid]
     e = synthesize(ForwardModel(cell), truth, prof, prof.soc0, seed=seed)
     cols = {TIME: prof.t, VOLTAGE: e.voltage, CURRENT: prof.current, AMBIENT: np.full(prof.t.size, 25.0)}
-    data = LoggedData(f"p{pid}", cols, {"soc0": prof.soc0})
+    return _frozen(cols), prof.soc0
+
+
+def _virtual_csv(tmp_path: Path, pid: int, seed: int) -> str:
+    """Library profile ``pid`` on the virtual truth (R_s of both electrodes moved) with seeded noise, logged at
+    25 degC as a BDF CSV; its path."""
+    from battlab.io.bdf import write_bdf_csv
+    from battlab.io.data import LoggedData
+
+    cols, soc0 = _virtual_data(pid, seed)
+    data = LoggedData(f"p{pid}", dict(cols), {"soc0": soc0})
     return str(write_bdf_csv(data, tmp_path / f"p{pid}.bdf.csv"))
 
 
@@ -107,27 +137,41 @@ def _run_log(
     trials: int = 0,
     noise_q: float = 0.0,
 ) -> tuple[Path, Path]:
-    """A run log as the runner writes it (its columns, step count and index, trial, the plan in its metadata) of a
+    """A run log (see :func:`_run_log_data`) written at ``path``, and its plan TOML beside it; (log, plan)."""
+    import tomli_w
+
+    from battlab.lab import logfile
+
+    cols, plan = _run_log_data(tuple(ids), repeat, truth, tuple(noise), trials, noise_q)
+    w = logfile.create(path, logfile.COLUMNS, {"cell": "nca18650", "plan": json.loads(plan), "soc0": None})
+    w.append(dict(cols))
+    w.close({"status": "completed"})
+    plan_path = path.with_name("plan.toml")
+    plan_path.write_text(tomli_w.dumps(json.loads(plan)))
+    return path, plan_path
+
+
+@functools.cache
+def _run_log_data(
+    ids: tuple[int, ...], repeat: int, truth: bool, noise: tuple[int, ...], trials: int, noise_q: float
+) -> tuple[dict[str, np.ndarray], str]:
+    """The columns of a run log as the runner writes it (step count and index, trial; the plan in its metadata) of a
     grouped plan of library profiles ``ids`` (profile k in group k), on nca18650 (its R_s moved to Table 4's truth
     when ``truth``), sampled every second: the full charge tapering at 4.2 V, the rests at the OCV of each
     profile's start SOC (SOC 0.8 for 28 and 37), the adjusting steps as ramps, the profiles simulated, with white
     noise of ``noise_q`` [V] (seeded) on the profiles' voltages. ``noise``, ``trials``: the plan starts with
-    ``trials`` noise trials of each of these library profiles. Returns (the log, the plan TOML written beside
-    it)."""
-    import tomli_w
-
+    ``trials`` noise trials of each of these library profiles. Returns (the columns, the plan as JSON)."""
     import battlab
     from battlab import parameters as P
     from battlab.design.plan import grouped_protocol, ocv_table
     from battlab.io.logged import CYCLE, NET_CAPACITY, STEP, STEP_INDEX
     from battlab.lab import logfile
     from battlab.lab.plan import Plan, RunOptions
-    from protocols import Library
     from protocols.protocol import CCCV, ProfileStep, Rest
 
     cell = battlab.Cell.load("nca18650")
     sim = cell.with_values(R_s_n=P.SPECS["R_s_n"].truth, R_s_p=P.SPECS["R_s_p"].truth) if truth else cell
-    lib = Library.build()
+    lib = _library()
     groups = [(k, [lib[i]]) for k, i in enumerate(ids, start=1)]
     proto = grouped_protocol("loop", groups, "test", ocv_table(cell), [lib[i] for i in noise], trials)
     rng = np.random.default_rng(7)
@@ -169,12 +213,7 @@ def _run_log(
         ):
             cols[c].append(x)
         t0, q = float(t[-1]) + 1.0, float(ah[-1])
-    w = logfile.create(path, logfile.COLUMNS, {"cell": "nca18650", "plan": plan.to_dict(), "soc0": None})
-    w.append({c: np.concatenate(v) for c, v in cols.items()})
-    w.close({"status": "completed"})
-    plan_path = path.with_name("plan.toml")
-    plan_path.write_text(tomli_w.dumps(plan.to_dict()))
-    return path, plan_path
+    return _frozen({c: np.concatenate(v) for c, v in cols.items()}), json.dumps(plan.to_dict())
 
 
 @pytest.fixture
@@ -185,22 +224,32 @@ def run_log() -> Callable[..., tuple[Path, Path]]:
 
 def _hidden_effect_csv(path: Path, extension: str | None = None, seed: int = 1, **values: float) -> str:
     """UDDS (first 1800 s) from SOC 0.7 at 25 degC on the nominal cell with ``extension`` on at ``values``."""
+    from battlab.io.bdf import write_bdf_csv
+    from battlab.io.data import LoggedData
+
+    cols = _hidden_effect_data(extension, seed, tuple(sorted(values.items())))
+    return str(write_bdf_csv(LoggedData(path.name.split(".")[0], dict(cols), {"soc0": 0.7}), path))
+
+
+@functools.cache
+def _hidden_effect_data(
+    extension: str | None, seed: int, values: tuple[tuple[str, float], ...]
+) -> dict[str, np.ndarray]:
+    """The columns of :func:`_hidden_effect_csv`."""
     import battlab
     from battlab.identify.forward import ForwardModel
     from battlab.identify.virtual import synthesize
-    from battlab.io.bdf import write_bdf_csv
-    from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE, LoggedData
+    from battlab.io.data import AMBIENT, CURRENT, TIME, VOLTAGE
     from protocols import Profile
     from protocols.drive_cycles import Cycle, drive_profile
 
     truth = battlab.Cell.load("nca18650")
     if extension is not None:
-        truth = truth.with_extension(extension, **values)
+        truth = truth.with_extension(extension, **dict(values))
     p = drive_profile(Cycle.UDDS)
     prof = Profile(p.t[:1801], p.current[:1801], id="udds")
     e = synthesize(ForwardModel(truth), truth, prof, 0.7, seed=seed)
-    cols = {TIME: prof.t, VOLTAGE: e.voltage, CURRENT: prof.current, AMBIENT: np.full(prof.t.size, 25.0)}
-    return str(write_bdf_csv(LoggedData(path.name.split(".")[0], cols, {"soc0": 0.7}), path))
+    return _frozen({TIME: prof.t, VOLTAGE: e.voltage, CURRENT: prof.current, AMBIENT: np.full(prof.t.size, 25.0)})
 
 
 @pytest.fixture(scope="session")

@@ -87,15 +87,15 @@ def _replay(prog: native.LUProgram, jnz: np.ndarray, b: np.ndarray) -> np.ndarra
 def test_lu_program_solves_the_step_jacobian_at_another_state(cell: battlab.Cell) -> None:
     """The pivot order analysed at one state still solves the Newton matrix at another (static pivoting)."""
     model = DFN(cell, Mesh(n_n=4, n_s=3, n_p=4, n_r=5))
-    fs, jsp, _ = native._functions(model)
-    jac = {f.name(): f for f in fs}["bl_jac"]
+    jac = {f.name(): f for f in native._functions(model)}["bl_jac"]
+    jsp = jac.sparsity_out(0)
     th = np.array([cell.normalised(n) for n in parameters.NAMES])
     x0 = solver.initial_state(model, 0.5, th, 298.15)
     y = np.concatenate([x0, solver.guess_algebraic(model, x0, 2.7)])
-    prog = native.analyse(jsp, np.array(jac(y, x0, x0, [1.0, 0.0, 2.7, 298.15], th).nonzeros()))
+    prog = native.analyse(jsp, np.array(jac(y, x0, x0, [1.0, 0.0, 2.7, 298.15], th)[0].nonzeros()))
     x1 = solver.initial_state(model, 0.2, th, 310.0)
     y1 = np.concatenate([x1, solver.guess_algebraic(model, x1, -5.0)])
-    jnz = np.array(jac(y1, x1, x1, [0.3, 1.5, -5.0, 310.0], th).nonzeros())
+    jnz = np.array(jac(y1, x1, x1, [0.3, 1.5, -5.0, 310.0], th)[0].nonzeros())
     A = sp.csc_matrix((jnz, np.array(jsp.row()), np.array(jsp.colind())), shape=(jsp.size1(), jsp.size1()))
     b = np.random.default_rng(1).standard_normal(jsp.size1())
     x = _replay(prog, jnz, b)
@@ -150,15 +150,22 @@ def test_a_failing_compiler_is_named_and_the_library_never_half_written(
 ) -> None:
     """The library is built from separate units (compiled side by side, then linked): a compiler that fails says
     so in one line (NativeUnavailable: the CasADi stepper takes over) and leaves nothing in the cache; a good build
-    leaves one library there, no partial file."""
+    leaves one library there with the index that names it, no partial file; the next stepper of that model loads it
+    without generating or compiling anything."""
+    tiny = Mesh(n_n=2, n_s=2, n_p=2, n_r=2)  # a small model: its build is what this test is about
     monkeypatch.setenv("BATTLAB_CACHE", str(tmp_path))
     monkeypatch.setenv("CC", "false")
     with pytest.raises(native.NativeUnavailable, match="C build failed: .*false exited with code 1"):
-        native.NativeStepper(DFN(cell, Mesh()))
+        native.NativeStepper(DFN(cell, tiny))
     assert list(tmp_path.iterdir()) == []
     monkeypatch.delenv("CC")
-    stepper = native.NativeStepper(DFN(cell, Mesh()))
-    assert [p.suffix for p in tmp_path.iterdir()] == [".so"] and stepper.compile_seconds > 0
+    stepper = native.NativeStepper(DFN(cell, tiny))
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert len(names) == 2 and names[0].startswith("bl_") and names[0].endswith(".so") and names[1].startswith("key_")
+    assert stepper.compile_seconds > 0
+    again = native.NativeStepper(DFN(cell, tiny))
+    assert again.generate_seconds == again.compile_seconds == 0.0
+    assert sorted(p.name for p in tmp_path.iterdir()) == names
 
 
 def test_live_cell_retries_a_failed_step_with_smaller_steps(
