@@ -87,9 +87,15 @@ def write_report(directory: Path, summaries: Mapping[str, Any], inputs: Mapping[
         S.append(Section("Capacity before and after", blocks))
     if "equilibrium" in summaries:
         e = summaries["equilibrium"]
-        kv = {k: e.get(k) for k in ("eps_s_n", "eps_s_p", "n_Li", "capacity_Ah", "rmse_mV", "rmse_5_95_mV")}
-        blocks = [KeyValues(kv)]
-        if "truth" in e:
+        keys = ("method", "eps_s_n", "eps_s_p", "n_Li", "capacity_Ah", "rmse_mV", "rmse_all_mV", "converged")
+        blocks = [KeyValues({k: e.get(k) for k in keys if k in e})]
+        if isinstance(e.get("truth"), dict) and all(isinstance(v, dict) for v in e["truth"].values()):
+            rows = [
+                [k, v["estimate"], v["ci95"], v["truth"], f"{100 * v['bias']:+.3f} %", v["covered"]]
+                for k, v in e["truth"].items()
+            ]
+            blocks.append(Table(["parameter", "estimate", "95 % interval", "truth", "bias", "covered"], rows))
+        elif "truth" in e:
             blocks.append(KeyValues({f"truth {k}": v for k, v in e["truth"].items()}))
         fp = _f(directory, inputs, "equilibrium", "figure")
         if fp:
