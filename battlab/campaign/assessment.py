@@ -40,8 +40,10 @@ def fit_oed(camp: Campaign) -> Callable[[StageContext], StageOutput]:
             for pid, rel in logs.items()
         }
         stages, used = [], set()
+        replaced = ctx.inputs["experiments"].summary.get("replaced", {})  # a spare's data fill its profile's place
         for g in ctx.inputs["design"].summary["groups"]:
-            new = [str(p) for p in g["selected"] if str(p) not in used and str(p) in exps]
+            sel = [str(replaced.get(str(p), p)) for p in g["selected"]]
+            new = [p for p in sel if p not in used and p in exps]
             used |= set(new)
             stages.append(FitStage(tuple(g["parameters"]), tuple(exps[p] for p in new)))
         out = ctx.directory / "fit"
