@@ -36,8 +36,9 @@ def fit_oed(camp: Campaign) -> Callable[[StageContext], StageOutput]:
 
         cell_path = ctx.path("equilibrium", "cell")
         logs = [ctx.directory / v for k, v in ctx.inputs["experiments"].files.items() if k.startswith("log_")]
+        replaced = ctx.inputs["experiments"].summary.get("replaced", {})  # a spare's data fill its profile's place
         groups = tuple(
-            (tuple(g["parameters"]), frozenset(str(p) for p in g["selected"]))
+            (tuple(g["parameters"]), frozenset(str(replaced.get(str(p), p)) for p in g["selected"]))
             for g in ctx.inputs["design"].summary["groups"]
         )
         s = settings(camp)

@@ -15,6 +15,9 @@ from battlab.campaign.stages import StageContext, StageOutput
 from battlab.cell import Cell
 from battlab.design.noise_trials import noise_profiles
 
+#: simulations of the slow cycle in the equilibrium fit of the quick campaign (each new ε_s compiles a model)
+QUICK_SIMULATIONS = 4
+
 
 def capacity(camp: Campaign, which: str) -> Callable[[StageContext], StageOutput]:
     def run(ctx: StageContext) -> StageOutput:
@@ -43,23 +46,34 @@ def ocv(camp: Campaign) -> Callable[[StageContext], StageOutput]:
 def equilibrium(camp: Campaign) -> Callable[[StageContext], StageOutput]:
     def run(ctx: StageContext) -> StageOutput:
         from battlab.campaign.figures import ocv_fit
-        from battlab.identify.equilibrium import fit_equilibrium, ocv_curve
+        from battlab.identify.ocv_model import MAX_SIMULATIONS, against_truth, fit_equilibrium_model, slow_cycle
 
         d = D.load(ctx.path("ocv", "log"))
         m = D.steps(d, P.OCV_FIRST_STEP)
-        eq = fit_equilibrium(ocv_curve(d.t[m], d.current[m], d.voltage[m], source="ocv"), camp.start)
+        cycle = slow_cycle(d.t, d.current, d.voltage, int(np.flatnonzero(m)[0]), "ocv")
+        n_sim = QUICK_SIMULATIONS if camp.config.quick else MAX_SIMULATIONS
+        eq = fit_equilibrium_model(
+            cycle,
+            camp.start,
+            max_simulations=n_sim,
+            progress=lambda k, r, s: ctx.progress(k, n_sim, f"simulation {k}: {r:.3f} mV"),
+        )
         out = ctx.directory / "equilibrium"
         out.mkdir(parents=True, exist_ok=True)
-        eq.cell.renamed("equilibrium").to_bpx(out / "equilibrium.bpx.json", equilibrium=plain(eq.report()))
         rep = plain(eq.report())
+        eq.cell.renamed("equilibrium").to_bpx(out / "equilibrium.bpx.json", equilibrium=rep)
+        # the equilibrium cell with the slow cycle's diffusivities: what the designed profiles are screened on
+        eq.cell.with_values(**eq.nuisances).renamed("equilibrium-screen").to_bpx(out / "screen.bpx.json")
         if camp.tester.virtual:
-            truth = Cell.load(camp.tester.truth)
-            rep["truth"] = {k: float(truth[k]) for k in ("eps_s_n", "eps_s_p", "n_Li")}
-            rep["truth"]["capacity_Ah"] = float(truth.capacity())
+            rep["truth"] = plain(against_truth(eq, Cell.load(camp.tester.truth)))
         write_json(out / "summary.json", rep)
         fig = ocv_fit(d.t[m], d.current[m], d.voltage[m], eq.cell, out / "ocv_fit.png")
-        files = {"cell": "equilibrium/equilibrium.bpx.json", "summary": "equilibrium/summary.json"}
-        files["figure"] = str(fig.relative_to(ctx.directory))
+        files = {
+            "cell": "equilibrium/equilibrium.bpx.json",
+            "screen_cell": "equilibrium/screen.bpx.json",
+            "summary": "equilibrium/summary.json",
+            "figure": str(fig.relative_to(ctx.directory)),
+        }
         return StageOutput(files, rep)
 
     return run

@@ -50,7 +50,14 @@ UNITS: tuple[Unit, ...] = (
     ),
     Unit("ocv", "OCV test (one C/20 cycle)", ocv, (), T, True, ("log", "health")),
     Unit(
-        "equilibrium", "equilibrium fit", equilibrium, ("ocv",), T, False, ("cell", "summary", "figure"), R.equilibrium
+        "equilibrium",
+        "equilibrium fit",
+        equilibrium,
+        ("ocv",),
+        ("campaign", "quick"),
+        False,
+        ("cell", "screen_cell", "summary", "figure"),
+        R.equilibrium,
     ),
     Unit("library", "input library", library, (), ("library",), False, ("library",)),
     Unit(

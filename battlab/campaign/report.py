@@ -181,9 +181,15 @@ def capacity_before(view: View) -> Section | None:
 
 def equilibrium(view: View) -> Section:
     e = view.summaries["equilibrium"]
-    kv = {k: e.get(k) for k in ("eps_s_n", "eps_s_p", "n_Li", "capacity_Ah", "rmse_mV", "rmse_5_95_mV")}
-    blocks: list[Block] = [KeyValues(kv)]
-    if "truth" in e:
+    keys = ("method", "eps_s_n", "eps_s_p", "n_Li", "capacity_Ah", "rmse_mV", "rmse_5_95_mV", "rmse_all_mV")
+    blocks: list[Block] = [KeyValues({k: e.get(k) for k in (*keys, "converged") if k in e})]
+    if isinstance(e.get("truth"), dict) and all(isinstance(v, dict) for v in e["truth"].values()):
+        rows = [
+            [k, v["estimate"], v["ci95"], v["truth"], f"{100 * v['bias']:+.3f} %", v["covered"]]
+            for k, v in e["truth"].items()
+        ]
+        blocks.append(Table(["parameter", "estimate", "95 % interval", "truth", "bias", "covered"], rows))
+    elif "truth" in e:
         blocks.append(KeyValues({f"truth {k}": v for k, v in e["truth"].items()}))
     fp = view.file("equilibrium", "figure")
     if fp:

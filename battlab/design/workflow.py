@@ -263,6 +263,9 @@ class DesignReport:
     window: Any = None
     #: candidates left out because they leave the plan's SOC or voltage window: id -> reason
     window_excluded: Mapping[Any, str] = field(default_factory=dict)
+    #: per selected profile, the candidates that best take its place if it cannot be run, best first
+    #: (:func:`battlab.design.replacement.replacements`)
+    replacements: Mapping[Any, list[Any]] = field(default_factory=dict)
 
 
 #: designs tried when the written plan fails its window check (each retry leaves out the profiles that failed)
@@ -302,7 +305,7 @@ def design(
     ``rest_before_s``: the rest before every profile [s] (:data:`battlab.design.plan.REST_BEFORE_S`)."""
     from battlab.design import figures as figs
     from battlab.design import groups as gd
-    from battlab.design import identifiability, information
+    from battlab.design import identifiability, information, replacement
     from battlab.design import plan as planmod
     from battlab.design.criteria import Criterion
     from battlab.noise import NoiseModel
@@ -380,11 +383,30 @@ def design(
                 window.raise_if_bad(str(files.plan))
             keep = [k for k, pid in enumerate(info.ids) if pid not in failed]
             info = _subset(info, keep, {**info.excluded, **failed})
-        planmod.add_to_summary(files, window=window.to_dict())
+        spares = replacement.replacements(info, designs, settings.criterion)
+        listed = {pid for d in designs for pid in d.selected} | {c for v in spares.values() for c in v}
+        spans = replacement.voltage_spans(store, sorted(listed, key=str))
+        planmod.add_to_summary(
+            files,
+            window=window.to_dict(),
+            replacements=replacement.as_json(spares),
+            voltage_span={str(k_): list(v) for k_, v in spans.items()},
+        )
         fig = figs.design_weights(designs, Path(output).with_suffix(".weights.png"))
     window_excluded = {k_: v for k_, v in info.excluded.items() if k_ not in before}
     return DesignReport(
-        designs, meta_by_id, settings, source, len(info), solve_seconds, files, fig, note, window, window_excluded
+        designs,
+        meta_by_id,
+        settings,
+        source,
+        len(info),
+        solve_seconds,
+        files,
+        fig,
+        note,
+        window,
+        window_excluded,
+        spares,
     )
 
 

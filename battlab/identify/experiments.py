@@ -124,7 +124,13 @@ def segments(data: LoggedData, max_gap: float = 60.0) -> list[slice]:
 def resample(
     t: np.ndarray, current: np.ndarray, voltage: np.ndarray, dt: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Uniform grid from t[0] every ``dt`` [s]: bin-averaged current (zero-order hold), interpolated voltage."""
+    """Uniform grid from t[0] every ``dt`` [s]: bin-averaged current (zero-order hold), interpolated voltage.
+
+    The voltage at a grid time is the right limit, as the model's (the value with the bin's current applied): a row
+    followed within 1 % of ``dt`` by another is the left limit of a step change (a tester logs the last sample of a
+    step and the first of the next a millisecond apart), so it is left out of the voltage's interpolation (kept in
+    the charge). Interpolating through it put the rest voltage at the grid time where a profile starts, against the
+    model's loaded voltage: hundreds of mV at one sample per experiment."""
     if dt <= 0:
         return t - t[0], current, voltage
     n = int(np.floor((t[-1] - t[0]) / dt + 1e-9))
@@ -141,7 +147,8 @@ def resample(
     i = np.empty(grid.size)
     i[:-1] = np.diff(q) / dt
     i[-1] = i[-2]
-    return grid - grid[0], i, np.interp(grid, t, voltage)
+    right = np.r_[np.diff(t) > 0.01 * dt, True]
+    return grid - grid[0], i, np.interp(grid, t[right], voltage[right])
 
 
 #: How far [V] logged voltages may lie outside the cell's [V_min, V_max] (sensing error, overshoot at a cut-off).

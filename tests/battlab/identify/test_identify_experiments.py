@@ -117,3 +117,22 @@ def test_gaps_are_judged_against_the_datas_own_sampling() -> None:
     assert [(s.start, s.stop) for s in segments(log(fast))] == [(0, 50), (50, 100)]
     fast[95:] += 600.0
     assert [(s.start, s.stop) for s in segments(log(fast))] == [(0, 50), (50, 95)]
+
+
+def test_resampled_voltage_is_the_right_limit_at_a_step_change() -> None:
+    """A run log holds the last sample of a rest and the first of the profile 1 ms apart (rest voltage, then the
+    loaded one). The grid time where the profile starts carries the profile's current in its bin, so its voltage is
+    the loaded one (the model's right limit), not the rest voltage interpolated from the row 1 ms before."""
+    from battlab.identify.experiments import resample
+
+    t = np.r_[np.arange(0.0, 61.0), 60.001 + np.arange(0.0, 10.0)]
+    current = np.r_[np.zeros(61), np.full(10, -12.0)]
+    voltage = np.r_[np.full(61, 3.9669), np.linspace(3.4385, 3.33, 10)]
+    tt, ii, vv = resample(t, current, voltage, 1.0)
+    assert tt[60] == pytest.approx(60.0)
+    assert ii[60] == pytest.approx(-12.0, abs=0.02)  # the bin from 60 s holds the profile's current
+    assert vv[60] == pytest.approx(3.4385, abs=1e-3)  # and its voltage is the loaded one
+    assert vv[59] == pytest.approx(3.9669)
+    assert vv[65] == pytest.approx(np.interp(65.0, t[61:], voltage[61:]))
+    # the charge keeps every row: ∫ I dt up to the grid's last time (69 s) equals the log's
+    assert np.sum(ii[:-1]) == pytest.approx(-12.0 * (69.0 - 60.001), rel=1e-9)
