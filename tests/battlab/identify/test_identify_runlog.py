@@ -172,7 +172,14 @@ def test_a_profile_after_a_full_charge_starts_from_it_with_the_preparation_as_le
         3600 * truth.capacity()
     )
     uniform = dataclasses.replace(
-        e, profile=e.scored_profile, voltage=e.scored_voltage, soc0=soc_rest, mask=None, lead_in=0, variance=1e-8
+        e,
+        profile=e.scored_profile,
+        voltage=e.scored_voltage,
+        soc0=soc_rest,
+        mask=None,
+        lead_in=0,
+        variance=1e-8,
+        temperature=None if e.temperature is None else e.temperature[e.lead_in :],
     )
     with_lead_in, from_uniform = rmse(e), rmse(uniform)
     print(f"truth on its log: {1e3 * with_lead_in:.3f} mV with the lead-in, {1e3 * from_uniform:.3f} mV uniform")
