@@ -13,11 +13,22 @@ from battlab.io.data import load_data
 from protocols.profile import Profile
 
 
-def test_panasonic_cold_tests_without_a_chamber_reading_need_the_ambient(shared_data: Path) -> None:
-    """The 0 °C HWFET file has an empty chamber column: refused with the reason, or taken at the given value."""
-    data = load_data(shared_data / "panasonic-18650pf" / "0degC_HWFET.mat")
+def test_panasonic_cold_tests_without_a_chamber_reading_need_the_ambient(shared_data: Path, tmp_path: Path) -> None:
+    """The 0 °C HWFET file has an empty chamber column: its ambient is the file name's (said), a given value wins;
+    the same file under a name without a temperature is refused with the reason, or taken at the given value."""
+    import shutil
+    import warnings
+
+    src = shared_data / "panasonic-18650pf" / "0degC_HWFET.mat"
     cell = Cell.load("nca18650").with_values(Q_nom=2.9)
-    with pytest.raises(InputError, match=r"0degC_HWFET\.mat: no ambient temperature logged \(column 'Ambient"):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        named = load_data(src)
+    assert any("Chamber_Temp_degC is not logged" in str(w.message) for w in caught)
+    assert all(e.ambient == pytest.approx(273.15) for e in experiments_from_data(named, cell, soc0=0.9))
+    bare = shutil.copy(src, tmp_path / "HWFET.mat")
+    data = load_data(bare)
+    with pytest.raises(InputError, match=r"HWFET\.mat: no ambient temperature logged \(column 'Ambient"):
         experiments_from_data(data, cell, soc0=0.9)
     exps = experiments_from_data(data, cell, soc0=0.9, ambient=273.15)
     assert exps and all(e.ambient == 273.15 for e in exps)
