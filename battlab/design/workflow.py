@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -272,6 +272,44 @@ class DesignReport:
 WINDOW_ATTEMPTS = 3
 
 
+def _check_arguments(
+    M: int, budget: float | None, noise_trials: int, noise_per_direction: int, rest_before_s: float
+) -> None:
+    """One :class:`InputError` for the first design argument out of its range."""
+    if M < 1:
+        raise InputError(f"-M must be at least 1, got {M}")
+    if not rest_before_s >= 1800.0:
+        raise InputError(f"--rest-before must be at least 1800 s (the fit's start state needs it), got {rest_before_s}")
+    if noise_trials == 1 or noise_trials < 0:
+        raise InputError(f"--noise-trials must be 0 (none) or at least 2 (eq. 36 needs repeats), got {noise_trials}")
+    if noise_trials and noise_per_direction < 1:
+        raise InputError(f"--noise-profiles must be at least 1, got {noise_per_direction}")
+    if budget is not None and budget <= 0:
+        raise InputError(f"--budget must be positive, got {budget}")
+
+
+def _design_in_window(
+    info: Any, grp: Sequence[Sequence[str]], settings: Any, conv: Any, cell: Any, write: Callable[..., Any]
+) -> tuple[Any, Any, Any, Any]:
+    """Design the groups and write the plan (``write(designs, info)``) until its window check passes, leaving out
+    the profiles that failed it each time (at most :data:`WINDOW_ATTEMPTS` designs); (designs, the information
+    left, the plan's files, its window check)."""
+    from battlab.design import groups as gd
+
+    for attempt in range(1, WINDOW_ATTEMPTS + 1):
+        designs = gd.design_groups(info, grp, settings, conv)
+        files = write(designs, info)
+        window = _check_plan_window(files.plan, cell)
+        failed = {p.profile_id: f"window: {p.problem}" for p in window.profiles if p.problem}
+        if not failed:
+            break
+        if attempt == WINDOW_ATTEMPTS:
+            window.raise_if_bad(str(files.plan))
+        keep = [k for k, pid in enumerate(info.ids) if pid not in failed]
+        info = _subset(info, keep, {**info.excluded, **failed})
+    return designs, info, files, window
+
+
 def design(
     store_path: str | Path,
     output: str | Path,
@@ -310,16 +348,7 @@ def design(
     from battlab.design.criteria import Criterion
     from battlab.noise import NoiseModel
 
-    if M < 1:
-        raise InputError(f"-M must be at least 1, got {M}")
-    if not rest_before_s >= 1800.0:
-        raise InputError(f"--rest-before must be at least 1800 s (the fit's start state needs it), got {rest_before_s}")
-    if noise_trials == 1 or noise_trials < 0:
-        raise InputError(f"--noise-trials must be 0 (none) or at least 2 (eq. 36 needs repeats), got {noise_trials}")
-    if noise_trials and noise_per_direction < 1:
-        raise InputError(f"--noise-profiles must be at least 1, got {noise_per_direction}")
-    if budget is not None and budget <= 0:
-        raise InputError(f"--budget must be positive, got {budget}")
+    _check_arguments(M, budget, noise_trials, noise_per_direction, rest_before_s)
     store, note = open_store(store_path)
     with store:
         t0 = time.perf_counter()
@@ -347,42 +376,40 @@ def design(
         noise_profs = noise_trial_profiles(store, cell, noise_per_direction) if noise_trials else []
         before = set(info.excluded)
         info = window_screen(store, info, cell)
-        for attempt in range(1, WINDOW_ATTEMPTS + 1):
-            designs = gd.design_groups(info, grp, settings, conv)
-            solve_seconds = time.perf_counter() - t0
+        extra = {
+            "groups_source": source,
+            "M": M,
+            "budget": budget,
+            "cost": cost,
+            "cumulative": cumulative,
+            "noise_trials": {"trials": noise_trials, "profiles": [str(p.id) for p in noise_profs]}
+            if noise_trials
+            else None,
+        }
+
+        def write(designs: Sequence[Any], info: Any) -> Any:
             meta_by_id = {m["id"]: m for m in info.meta}
-            files = planmod.write_plan(
+            return planmod.write_plan(
                 designs,
                 store,
                 output,
                 criterion=settings.criterion.value,
-                solve_seconds=solve_seconds,
+                solve_seconds=time.perf_counter() - t0,
                 ocv_table=planmod.ocv_table(cell),
                 extra={
-                    "groups_source": source,
-                    "M": M,
-                    "budget": budget,
-                    "cost": cost,
-                    "cumulative": cumulative,
+                    **extra,
                     "n_candidates": len(info),
                     "excluded": {str(k_): v for k_, v in info.excluded.items()},
                     "selected_profiles": {str(pid): meta_by_id[pid] for d in designs for pid in d.selected},
-                    "noise_trials": {"trials": noise_trials, "profiles": [str(p.id) for p in noise_profs]}
-                    if noise_trials
-                    else None,
                 },
                 noise=noise_profs,
                 trials=noise_trials,
                 rest_before_s=rest_before_s,
             )
-            window = _check_plan_window(files.plan, cell)
-            failed = {p.profile_id: f"window: {p.problem}" for p in window.profiles if p.problem}
-            if not failed:
-                break
-            if attempt == WINDOW_ATTEMPTS:
-                window.raise_if_bad(str(files.plan))
-            keep = [k for k, pid in enumerate(info.ids) if pid not in failed]
-            info = _subset(info, keep, {**info.excluded, **failed})
+
+        designs, info, files, window = _design_in_window(info, grp, settings, conv, cell, write)
+        solve_seconds = time.perf_counter() - t0
+        meta_by_id = {m["id"]: m for m in info.meta}
         spares = replacement.replacements(info, designs, settings.criterion)
         listed = {pid for d in designs for pid in d.selected} | {c for v in spares.values() for c in v}
         spans = replacement.voltage_spans(store, sorted(listed, key=str))

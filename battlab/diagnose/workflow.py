@@ -171,7 +171,7 @@ class Scores:
     twins: list[tuple[str, str, float]]
     mimics: dict[str, list[str]]
     p_threshold: float
-    base_passes: bool = False  # the 18 base directions together explain the residual beyond its noise
+    base_passes: bool = False  # one cause's own directions explain most of a residual beyond its noise
     share: dict[str, float] = field(default_factory=dict)  # per cause: share of the residual along its own directions
 
 
@@ -285,11 +285,14 @@ def score_step(prep: Prepared, fm: Any, o: DiagnoseOptions, say: Reporter) -> Sc
     results = [score.score_test(k, rp, J, ch.S[k], w, t, block_s=block_s) for k in tested]
     ranked = score.rank_causes(results)
     passing = [s for s in ranked if s.dof > 0 and s.p_value < p_threshold]
-    # the base directions take up the residual beyond the noise: the causes whose own directions take most of it
-    # are fitted (a joint score test of 18 directions over ~30 blocks has too little power to screen)
+    # the residual beyond the noise lies mostly along one cause's own directions (its base parameters or its
+    # extension, e.g. a loss of active material): the causes whose own directions take most of it are fitted (a
+    # joint score test of 18 directions over ~30 blocks has too little power to screen, and a block-variance test
+    # of an extension little more on a slow residual)
     s2 = float(np.sum(w * r**2) / max(r.size, 1))
-    base_passes = s2 > S2_BASE and base_share > 0.5
     everyone = [c.key for c in causes.CAUSES if c.key in ch.S or (not c.parameters and c.base)]
+    share = shares(ch, everyone)
+    base_passes = s2 > S2_BASE and max(share.values(), default=0.0) > 0.5
     twins = score.indistinguishable(ranked, w) + [tw for tw in mimic_pairs(ch, everyone) if tw[1] in tested]
     return Scores(
         ch,
@@ -303,7 +306,7 @@ def score_step(prep: Prepared, fm: Any, o: DiagnoseOptions, say: Reporter) -> Sc
         mimics,
         p_threshold,
         base_passes,
-        shares(ch, everyone),
+        share,
     )
 
 
