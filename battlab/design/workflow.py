@@ -288,6 +288,49 @@ def _check_arguments(
         raise InputError(f"--budget must be positive, got {budget}")
 
 
+def _information(
+    store: Any,
+    noise: Any,
+    include_flagged: bool,
+    unweighted: bool,
+    groups: Sequence[Sequence[str]] | None,
+    groups_spec: str | None,
+    k: int,
+) -> tuple[Any, Any, list[list[str]], str]:
+    """The candidates' information (eqs. 26–27, weighted by ``noise`` unless ``unweighted``), the conventional
+    tests' information, the parameter groups and where they came from (``"given"`` or the groups' source)."""
+    from battlab.design import identifiability, information
+    from battlab.noise import NoiseModel
+
+    info = information.load(store, noise, include_flagged=include_flagged)
+    if unweighted:
+        info = information.Information(info.ids, info.names, info.R, np.ones(len(info)), info.meta, info.excluded)
+    conv = information.conventional(store, noise if not unweighted else NoiseModel(floor=1.0))
+    if groups is not None:
+        return info, conv, [list(g) for g in groups], "given"
+    ranking = identifiability.rank(info.W, info.names, info.ids)
+    grp, source = load_groups(groups_spec, ranking, k, "mean")
+    return info, conv, grp, source
+
+
+def _add_spares(store: Any, info: Any, designs: Sequence[Any], settings: Any, files: Any, window: Any) -> Any:
+    """The spares of each selected profile (:func:`battlab.design.replacement.replacements`) and the simulated
+    voltage spans of every profile listed, added to the plan's summary with its window check; the spares."""
+    from battlab.design import plan as planmod
+    from battlab.design import replacement
+
+    spares = replacement.replacements(info, designs, settings.criterion)
+    listed = {pid for d in designs for pid in d.selected} | {c for v in spares.values() for c in v}
+    spans = replacement.voltage_spans(store, sorted(listed, key=str))
+    planmod.add_to_summary(
+        files,
+        window=window.to_dict(),
+        replacements=replacement.as_json(spares),
+        voltage_span={str(k_): list(v) for k_, v in spans.items()},
+    )
+    return spares
+
+
 def _design_in_window(
     info: Any, grp: Sequence[Sequence[str]], settings: Any, conv: Any, cell: Any, write: Callable[..., Any]
 ) -> tuple[Any, Any, Any, Any]:
@@ -343,24 +386,14 @@ def design(
     ``rest_before_s``: the rest before every profile [s] (:data:`battlab.design.plan.REST_BEFORE_S`)."""
     from battlab.design import figures as figs
     from battlab.design import groups as gd
-    from battlab.design import identifiability, information, replacement
     from battlab.design import plan as planmod
     from battlab.design.criteria import Criterion
-    from battlab.noise import NoiseModel
 
     _check_arguments(M, budget, noise_trials, noise_per_direction, rest_before_s)
     store, note = open_store(store_path)
     with store:
         t0 = time.perf_counter()
-        info = information.load(store, noise, include_flagged=include_flagged)
-        if unweighted:
-            info = information.Information(info.ids, info.names, info.R, np.ones(len(info)), info.meta, info.excluded)
-        conv = information.conventional(store, noise if not unweighted else NoiseModel(floor=1.0))
-        if groups is not None:
-            grp, source = [list(g) for g in groups], "given"
-        else:
-            ranking = identifiability.rank(info.W, info.names, info.ids)
-            grp, source = load_groups(groups_spec, ranking, k, "mean")
+        info, conv, grp, source = _information(store, noise, include_flagged, unweighted, groups, groups_spec, k)
         settings = gd.Settings(
             M=M,
             criterion=Criterion.of(criterion),
@@ -376,19 +409,11 @@ def design(
         noise_profs = noise_trial_profiles(store, cell, noise_per_direction) if noise_trials else []
         before = set(info.excluded)
         info = window_screen(store, info, cell)
-        extra = {
-            "groups_source": source,
-            "M": M,
-            "budget": budget,
-            "cost": cost,
-            "cumulative": cumulative,
-            "noise_trials": {"trials": noise_trials, "profiles": [str(p.id) for p in noise_profs]}
-            if noise_trials
-            else None,
-        }
+        trials = {"trials": noise_trials, "profiles": [str(p.id) for p in noise_profs]} if noise_trials else None
+        extra = {"groups_source": source, "M": M, "budget": budget, "cost": cost, "cumulative": cumulative}
 
         def write(designs: Sequence[Any], info: Any) -> Any:
-            meta_by_id = {m["id"]: m for m in info.meta}
+            meta = {m["id"]: m for m in info.meta}
             return planmod.write_plan(
                 designs,
                 store,
@@ -398,9 +423,10 @@ def design(
                 ocv_table=planmod.ocv_table(cell),
                 extra={
                     **extra,
+                    "noise_trials": trials,
                     "n_candidates": len(info),
                     "excluded": {str(k_): v for k_, v in info.excluded.items()},
-                    "selected_profiles": {str(pid): meta_by_id[pid] for d in designs for pid in d.selected},
+                    "selected_profiles": {str(pid): meta[pid] for d in designs for pid in d.selected},
                 },
                 noise=noise_profs,
                 trials=noise_trials,
@@ -409,32 +435,11 @@ def design(
 
         designs, info, files, window = _design_in_window(info, grp, settings, conv, cell, write)
         solve_seconds = time.perf_counter() - t0
-        meta_by_id = {m["id"]: m for m in info.meta}
-        spares = replacement.replacements(info, designs, settings.criterion)
-        listed = {pid for d in designs for pid in d.selected} | {c for v in spares.values() for c in v}
-        spans = replacement.voltage_spans(store, sorted(listed, key=str))
-        planmod.add_to_summary(
-            files,
-            window=window.to_dict(),
-            replacements=replacement.as_json(spares),
-            voltage_span={str(k_): list(v) for k_, v in spans.items()},
-        )
+        spares = _add_spares(store, info, designs, settings, files, window)
         fig = figs.design_weights(designs, Path(output).with_suffix(".weights.png"))
-    window_excluded = {k_: v for k_, v in info.excluded.items() if k_ not in before}
-    return DesignReport(
-        designs,
-        meta_by_id,
-        settings,
-        source,
-        len(info),
-        solve_seconds,
-        files,
-        fig,
-        note,
-        window,
-        window_excluded,
-        spares,
-    )
+    excluded = {k_: v for k_, v in info.excluded.items() if k_ not in before}
+    meta, n = {m["id"]: m for m in info.meta}, len(info)
+    return DesignReport(designs, meta, settings, source, n, solve_seconds, files, fig, note, window, excluded, spares)
 
 
 #: [s] the longest noise-trial profile (the campaign's quick setting): repeats multiply its cost
