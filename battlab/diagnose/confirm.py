@@ -85,11 +85,18 @@ def refit_names(cell: Cell, J: np.ndarray, r: np.ndarray, w: np.ndarray, names: 
     return tuple(names[k] for k in order[:N_BASE])
 
 
+#: the particle radii, held in every cause's fit: by the scaling symmetry (R_s, D_s, k, R_f) → (λR_s, λ²D_s, λk,
+#: R_f/λ) a radius moved with its diffusivity changes κ = k/R_s and ρ = R_f·R_s at the same τ = R_s²/D_s, so a
+#: solid-diffusion fit that moved R_s took up a change of the reaction rates (PyBaMM's k × 0.3 was named
+#: solid_diffusion); D_s alone spans τ at the cell's radius
+HELD_RADII = ("R_s_n", "R_s_p")
+
+
 def mechanism_names(cell: Cell, key: str, informed: Sequence[str]) -> tuple[str, ...]:
-    """What a cause's fit moves: its base parameters among the 18 that ``cell`` can refit, then its extension's
-    ``informed`` parameters (``KEY.NAME``)."""
+    """What a cause's fit moves: its base parameters among the 18 that ``cell`` can refit (the radii held:
+    :data:`HELD_RADII`), then its extension's ``informed`` parameters (``KEY.NAME``)."""
     c = causes.cause(key)
-    base = [n for n in parameters.NAMES if n in c.base and fittable(cell, n)]
+    base = [n for n in parameters.NAMES if n in c.base and n not in HELD_RADII and fittable(cell, n)]
     return (*base, *informed)
 
 
@@ -289,6 +296,7 @@ def cannot_tell(v: Verdict, fits: Sequence[Candidate]) -> list[dict[str, Any]]:
 
 __all__ = [
     "CONFIRM",
+    "HELD_RADII",
     "MAX_CONFIRM",
     "MIMICKED",
     "MIN_GAIN",
