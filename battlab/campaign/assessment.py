@@ -5,6 +5,7 @@ BPX export."""
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from battlab.campaign import data as D
@@ -35,7 +36,7 @@ def fit_oed(camp: Campaign) -> Callable[[StageContext], StageOutput]:
         from battlab.progress import ProgressEvent
 
         cell_path = ctx.path("equilibrium", "cell")
-        logs = [ctx.directory / v for k, v in ctx.inputs["experiments"].files.items() if k.startswith("log_")]
+        logs, preps = experiment_logs(ctx)
         replaced = ctx.inputs["experiments"].summary.get("replaced", {})  # a spare's data fill its profile's place
         groups = tuple(
             (tuple(g["parameters"]), frozenset(str(replaced.get(str(p), p)) for p in g["selected"]))
@@ -49,6 +50,7 @@ def fit_oed(camp: Campaign) -> Callable[[StageContext], StageOutput]:
             noise=ctx.path("noise", "model"),
             max_iter=s.max_evaluations,
             polish=s.polish,
+            preparations=preps,
             output=ctx.directory / "fit" / "oed.bpx.json",
         )
 
@@ -66,6 +68,14 @@ def fit_oed(camp: Campaign) -> Callable[[StageContext], StageOutput]:
         return StageOutput({"cell": "fit/oed.bpx.json", "summary": "fit/oed.summary.json"}, summary)
 
     return run
+
+
+def experiment_logs(ctx: StageContext) -> tuple[list[Path], tuple[tuple[Path, Path], ...]]:
+    """The designed experiments' logs and (log, its preparation's log) pairs, for the fit's lead-ins."""
+    files = ctx.inputs["experiments"].files
+    logs = {k.removeprefix("log_"): ctx.directory / v for k, v in files.items() if k.startswith("log_")}
+    preps = tuple((p, ctx.directory / files[f"prep_{k}"]) for k, p in logs.items() if f"prep_{k}" in files)
+    return list(logs.values()), preps
 
 
 def conventional(camp: Campaign) -> Callable[[StageContext], StageOutput]:
@@ -89,22 +99,29 @@ def conventional(camp: Campaign) -> Callable[[StageContext], StageOutput]:
                 if c > 0
                 else P.prepare(1.0, camp.q_rated, cap, camp.ambient)
             )
-            hours += camp.run(prep, f"conventional/cc_{c:+.3g}C_prep").hours
+            prepared = camp.run(prep, f"conventional/cc_{c:+.3g}C_prep")
             out = camp.run_to_limit(
                 P.constant_current(c, camp.q_rated, camp.ambient, rest_after_s=camp.rest_after_s),
                 f"conventional/cc_{c:+.3g}C",
                 notes,
             )
-            hours += out.hours
+            hours += prepared.hours + out.hours
             files[f"log_cc_{c:+.3g}C"] = rel_path(ctx, out.log_path)
-            exps.append(D.experiment(out.log_path, cell, name=f"CC {c:+.3g}C", noise=model, dt=CC_DT))
+            name = f"CC {c:+.3g}C"
+            exps.append(
+                D.experiment(out.log_path, cell, name=name, noise=model, dt=CC_DT)
+                if c > 0  # from empty: no full charge to start a lead-in from
+                else D.experiment_after_preparation(
+                    prepared.log_path, out.log_path, cell, name=name, noise=model, dt=CC_DT
+                )
+            )
         ctx.progress(len(rates), len(rates) + 1, "UDDS")
         udds = drive_profile(Cycle.UDDS, soc0=0.8, id="UDDS")
-        hours += camp.run(P.prepare(0.8, camp.q_rated, cap, camp.ambient), "conventional/udds_prep").hours
+        prepared = camp.run(P.prepare(0.8, camp.q_rated, cap, camp.ambient), "conventional/udds_prep")
         out = camp.run(camp.measurement(udds), "conventional/udds")
-        hours += out.hours
+        hours += prepared.hours + out.hours
         files["log_udds"] = rel_path(ctx, out.log_path)
-        exps.append(D.experiment(out.log_path, cell, name="UDDS", noise=model))
+        exps.append(D.experiment_after_preparation(prepared.log_path, out.log_path, cell, name="UDDS", noise=model))
         fit_dir = ctx.directory / "conventional"
         summary = cumulative_fit(
             cell, [FitStage(tuple(NAMES), tuple(exps))], camp, fit_dir / "conventional.bpx.json", ctx.progress
@@ -138,10 +155,11 @@ def validation(camp: Campaign) -> Callable[[StageContext], StageOutput]:
             hours += out.hours
             logs[f"{c:g}C discharge"] = (out.log_path, CC_DT)
         prof = lib[VALIDATION_DRIVE_ID]
-        hours += camp.run(P.prepare(float(prof.soc0), camp.q_rated, cap, camp.ambient), "validation/drive_prep").hours
+        prepared = camp.run(P.prepare(float(prof.soc0), camp.q_rated, cap, camp.ambient), "validation/drive_prep")
         out = camp.run(camp.measurement(prof), "validation/drive")
-        hours += out.hours
-        logs[f"{prof.params.get('name', 'drive')} from SOC {prof.soc0:g}"] = (out.log_path, 1.0)
+        hours += prepared.hours + out.hours
+        drive = f"{prof.params.get('name', 'drive')} from SOC {prof.soc0:g}"
+        logs[drive] = (out.log_path, 1.0)
         cells = {
             "nominal": Cell.load(str(ctx.path("equilibrium", "cell"))),
             "conventional": Cell.load(str(ctx.path("conventional", "cell"))),
@@ -152,6 +170,7 @@ def validation(camp: Campaign) -> Callable[[StageContext], StageOutput]:
         summary["hours"] = hours
         summary["notes"] = notes
         files = {f"log_{k}": rel_path(ctx, p) for k, (p, _) in logs.items()}
+        files[f"prep_{drive}"] = rel_path(ctx, prepared.log_path)  # the diagnosis's held-out lead-in
         files.update(summary="validation/validation.json", health=health_file(camp, ctx, "validation", n0))
         return StageOutput(files, summary, hours)
 

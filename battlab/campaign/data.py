@@ -60,24 +60,11 @@ def experiment(
 def experiment_after_preparation(
     prep: str | Path, path: str | Path, cell: Cell, *, name: str, noise: NoiseModel | None = None, dt: float = 1.0
 ) -> Experiment:
-    """:func:`experiment` with its preparation as an unscored lead-in (:func:`battlab.identify.runlog.with_lead_in`):
-    from the end of the preparation's full charge (plan step 2, the rest after it) through the adjustment to the
-    profile's start SOC and the rest, so that the gradients the adjustment leaves in the particles are simulated
-    instead of taken as a uniform cell at rest (on nca18650-true, τ⁻ ≈ 4.3 h: after the 30 min rest a 0.2-SOC
-    adjustment at C/2 leaves s² 27 on the 30-min pulse profile 48, 541 after a 0.6-SOC one). Its start SOC is the
-    measurement's rest-voltage SOC minus the charge passed since the full charge (the rest voltage is itself still
-    relaxing: a fit frees it per experiment, ``soc_span``)."""
-    from battlab.identify.runlog import with_lead_in
+    """:func:`experiment` with its preparation's log ``prep`` as an unscored lead-in
+    (:func:`battlab.identify.runlog.after_preparation`)."""
+    from battlab.identify.runlog import after_preparation
 
-    e = experiment(path, cell, name=name, noise=noise, dt=dt)
-    d = load(prep)
-    step2 = d.columns[STEP_INDEX] == 2
-    first = np.flatnonzero(step2)
-    if first.size == 0 or len(d) < 3 or np.max(np.abs(d.current[step2])) > 0.01 * float(cell["Q_nom"]):
-        raise InputError(f"{prep}: no rest after a full charge (plan step 2) to start the lead-in from")
-    a, b = int(first[0]), len(d) - 1
-    passed = float(np.sum(d.current[a:b] * np.diff(d.t[a : b + 1]))) / 3600.0
-    return with_lead_in(e, d, a, b, float(np.clip(e.soc0 - passed / cell.capacity(), 0.0, 1.0)))
+    return after_preparation(experiment(path, cell, name=name, noise=noise, dt=dt), load(prep), cell)
 
 
 def with_truth(e: Experiment, truth: Cell, rest_voltage: float) -> Experiment:

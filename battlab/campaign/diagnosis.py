@@ -30,13 +30,23 @@ def _validation_logs(ctx: StageContext) -> dict[str, tuple[Path, float]]:
     return out
 
 
-def _diagnose(camp: Campaign, ctx: StageContext, cell_path: Path, train: list[Path], held: Path) -> Any:
-    """The diagnosis, with deciding experiments on the tester when asked: (report, rounds, why undecided)."""
+def _diagnose(
+    camp: Campaign,
+    ctx: StageContext,
+    cell_path: Path,
+    train: list[Path],
+    held: Path,
+    preps: tuple[tuple[Path, Path], ...],
+) -> Any:
+    """The diagnosis, each log started at its preparation's full charge (``preps``: (log, preparation's log)), with
+    deciding experiments on the tester when asked: (report, rounds, why undecided)."""
     from battlab.campaign.decide import DecideOptions, decide
     from battlab.diagnose.workflow import DiagnoseOptions, diagnose
 
     cfg = camp.config.diagnosis
-    options = DiagnoseOptions((*train, held), cell_path, held_out=held, max_iter=cfg.max_evaluations)
+    options = DiagnoseOptions(
+        (*train, held), cell_path, held_out=held, max_iter=cfg.max_evaluations, preparations=preps
+    )
 
     def show(ev: Any) -> None:
         if ev.kind == "note" and ev.text:
@@ -60,7 +70,15 @@ def _diagnose(camp: Campaign, ctx: StageContext, cell_path: Path, train: list[Pa
     return dec.report, dec.rounds, dec.undecided
 
 
-def _extend(camp: Campaign, ctx: StageContext, cause: str, cell_path: Path, train: list[Path], out: Path) -> Path:
+def _extend(
+    camp: Campaign,
+    ctx: StageContext,
+    cause: str,
+    cell_path: Path,
+    train: list[Path],
+    preps: tuple[tuple[Path, Path], ...],
+    out: Path,
+) -> Path:
     """The extend step: the named cause's extension switched on in the OED fit's cell and its own parameters
     (:func:`battlab.diagnose.confirm.mechanism_names`) fitted on the designed experiments."""
     from battlab import causes
@@ -77,6 +95,7 @@ def _extend(camp: Campaign, ctx: StageContext, cause: str, cell_path: Path, trai
         params=",".join(names),
         noise=ctx.path("noise", "model"),
         max_iter=camp.config.diagnosis.max_evaluations * 2,
+        preparations=preps,
         output=out,
         drop_uninformed=True,
     )
@@ -86,17 +105,21 @@ def _extend(camp: Campaign, ctx: StageContext, cause: str, cell_path: Path, trai
 
 def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
     def run(ctx: StageContext) -> StageOutput:
+        from battlab.campaign.assessment import experiment_logs
         from battlab.campaign.identify import score
 
         cell_path = ctx.path("fit", "cell")
-        train = [ctx.directory / v for k, v in ctx.inputs["experiments"].files.items() if k.startswith("log_")]
+        train, preps = experiment_logs(ctx)
         logs = _validation_logs(ctx)
         drive = next((p for name, (p, _) in logs.items() if "discharge" not in name), None)
         out = ctx.directory / "diagnosis"
         out.mkdir(parents=True, exist_ok=True)
         if drive is None:
             raise ValueError("campaign diagnosis: the validation stage logged no drive cycle to hold out")
-        rep, rounds, undecided = _diagnose(camp, ctx, cell_path, train, drive)
+        vfiles = ctx.inputs["validation"].files
+        drive_prep = next((ctx.directory / v for k, v in vfiles.items() if k.startswith("prep_")), None)
+        held_prep = ((drive, drive_prep),) if drive_prep is not None else ()
+        rep, rounds, undecided = _diagnose(camp, ctx, cell_path, train, drive, preps + held_prep)
         s = rep.summary
         s["rounds"] = rounds
         if undecided:
@@ -109,7 +132,7 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
         table: dict[str, Any] = {}
         cause = s["cause"]
         if cause is not None:
-            extended = _extend(camp, ctx, cause, cell_path, train, out / "extended.bpx.json")
+            extended = _extend(camp, ctx, cause, cell_path, train, preps, out / "extended.bpx.json")
             files["cell"] = "diagnosis/extended.bpx.json"
             truth = Cell.load(camp.tester.truth) if camp.tester.virtual else None
             cells = {"before": Cell.load(str(cell_path)), "after": Cell.load(str(extended))}

@@ -142,18 +142,19 @@ def experiments(camp: Campaign) -> Callable[[StageContext], StageOutput]:
         ids = selected_ids(design)
         spares = {int(k): [int(c) for c in v] for k, v in design.get("replacements", {}).items()}
         spans = {int(k): (float(v[0]), float(v[1])) for k, v in design.get("voltage_span", {}).items()}
-        hours, logs, failed = [0.0], {}, {}
+        hours, logs, preps, failed = [0.0], {}, {}, {}
 
         def one(pid: int) -> tuple[bool, str, float]:
             # a profile the cell cannot follow (a safety limit, a model failure of the virtual cell) is recorded,
             # replaced by its best spare (battlab.design.replacement) and left out of the fit; the others go on
             ctx.progress(len(logs), len(ids), f"profile {pid}")
             prof = lib[pid]
-            hours[0] += camp.run(P.prepare(float(prof.soc0), camp.q_rated, cap, camp.ambient), f"oed/{pid}_prep").hours
+            prep = camp.run(P.prepare(float(prof.soc0), camp.q_rated, cap, camp.ambient), f"oed/{pid}_prep")
             out = camp.run(camp.measurement(prof), f"oed/{pid}", must_complete=False)
-            hours[0] += out.hours
+            hours[0] += prep.hours + out.hours
             if out.status == "completed":
                 logs[str(pid)] = rel_path(ctx, out.log_path)
+                preps[str(pid)] = rel_path(ctx, prep.log_path)  # the fit's lead-in into the measurement
                 return True, "completed", float("nan")
             failed[str(pid)] = out.reason or out.status
             d = D.load(out.log_path)
@@ -176,7 +177,7 @@ def experiments(camp: Campaign) -> Callable[[StageContext], StageOutput]:
         attempts = run_designed(ids, spares, span, one, guard)
         if not logs:
             raise RunFailed(f"no designed experiment completed ({'; '.join(f'{k}: {v}' for k, v in failed.items())})")
-        files = {f"log_{k}": v for k, v in logs.items()}
+        files = {f"log_{k}": v for k, v in logs.items()} | {f"prep_{k}": v for k, v in preps.items()}
         files["health"] = health_file(camp, ctx, "experiments", n0)
         summary = {
             "profiles": ids,

@@ -61,10 +61,14 @@ def cumulative_fit(
 
 
 def settings(camp: Any) -> Any:
-    """The campaign's fit settings (``[fit]``), with the engine's defaults for the rest."""
+    """The campaign's fit settings (``[fit]``), with the engine's defaults for the rest; the start SOCs free within
+    the span of measurements with a logged preparation (their rest voltage is still relaxing)."""
     from battlab.identify.cumulative import FitSettings
+    from battlab.identify.fit_options import PREPARED_SOC_SPAN
 
-    return FitSettings(max_evaluations=camp.config.fit.max_evaluations, polish=camp.config.fit.polish)
+    return FitSettings(
+        max_evaluations=camp.config.fit.max_evaluations, polish=camp.config.fit.polish, soc_span=PREPARED_SOC_SPAN
+    )
 
 
 def finish(summary: dict[str, Any], camp: Any, start: Cell) -> None:

@@ -98,7 +98,7 @@ UNITS: tuple[Unit, ...] = (
         ("library", "design", "equilibrium"),
         ("campaign", "quick"),
         True,
-        ("log_*", "health"),
+        ("log_*", "prep_*", "health"),
     ),
     Unit(
         "fit",
@@ -127,7 +127,7 @@ UNITS: tuple[Unit, ...] = (
         ("library", "equilibrium", "conventional", "fit"),
         ("campaign", "quick", "validation"),
         True,
-        ("log_*", "summary", "health"),
+        ("log_*", "prep_*", "summary", "health"),
         R.validation,
     ),
     Unit(

@@ -40,7 +40,8 @@ def rests_after_both_directions(experiments: Sequence[Experiment], i_rest: float
     discharge."""
     seen = {1: False, -1: False}
     for e in experiments:
-        t, i = np.asarray(e.profile.t, float), np.asarray(e.profile.current, float)
+        p = e.scored_profile  # a lead-in informs nothing: it is never scored
+        t, i = np.asarray(p.t, float), np.asarray(p.current, float)
         last, rest_start = 0, None
         for k in range(i.size):
             if abs(i[k]) > i_rest:

@@ -10,7 +10,16 @@ from __future__ import annotations
 
 import click
 
-from battlab.cli.options import AMBIENT_OPTION, DATA_FORMATS, dt_option, max_iter_option, parse_ambients, soc0_option
+from battlab.cli.options import (
+    AMBIENT_OPTION,
+    DATA_FORMATS,
+    dt_option,
+    max_iter_option,
+    parse_ambients,
+    parse_preparations,
+    preparation_option,
+    soc0_option,
+)
 
 
 @click.command("diagnose", epilog=DATA_FORMATS)
@@ -26,6 +35,7 @@ from battlab.cli.options import AMBIENT_OPTION, DATA_FORMATS, dt_option, max_ite
 @soc0_option()
 @dt_option()
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
+@preparation_option()
 @click.option(
     "--cause", "causes", multiple=True, help="Test only this catalog cause (repeat; default: every testable one)."
 )
@@ -59,6 +69,7 @@ def diagnose(
     soc0: float | None,
     dt: float,
     fix_sign: bool,
+    preparations: tuple[str, ...],
     causes: tuple[str, ...],
     max_iter: int,
     decide: bool,
@@ -85,6 +96,7 @@ def diagnose(
         fix_sign=fix_sign,
         causes=causes or None,
         max_iter=max_iter,
+        preparations=parse_preparations(preparations),
     )
     echo = [lines(lambda text: click.echo(f"... {text}", err=True))]
     if decide:

@@ -28,6 +28,8 @@ from battlab.cli.options import (
     extension_option,
     ocp_option,
     parse_ambients,
+    parse_preparations,
+    preparation_option,
     soc0_option,
 )
 from battlab.identify.fit_options import cli_fields
@@ -53,6 +55,7 @@ from protocols.errors import InputError
     help="After the stages, fit cell values outside the 18 (e.g. R_c, E_kappa, h2a; C1+C2: one factor on both) to "
     "the voltage (default) or the surface 'temperature:' by finite differences; repeat for several fits, in order.",
 )
+@preparation_option()
 @click.option(
     "--noise",
     "noise_file",
@@ -69,6 +72,7 @@ def fit(
     extensions: tuple[str, ...],
     ocps: tuple[str, ...],
     value_stages: tuple[str, ...],
+    preparations: tuple[str, ...],
     noise_file: str | None,
     output: str,
     **settings: Any,
@@ -114,6 +118,7 @@ def fit(
         cell=start,
         ambient=parse_ambients(ambients),
         value_stages=tuple(values.parse_value_stage(v) for v in value_stages),
+        preparations=parse_preparations(preparations),
         noise=noise_file,
         output=out,
         **settings,

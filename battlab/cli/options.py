@@ -163,6 +163,34 @@ AMBIENT_OPTION = click.option(
 )
 
 
+def preparation_option() -> Any:
+    """``--preparation DATA=PREP`` (repeatable): the log of a data file's preparation, its unscored lead-in."""
+    return click.option(
+        "--preparation",
+        "preparations",
+        multiple=True,
+        metavar="DATA=PREP",
+        help="PREP is the log of DATA's preparation (a full charge, a rest, the adjustment to the start SOC and a "
+        "rest, logged as its own run): DATA starts at the full charge with the preparation simulated unscored, so "
+        "that the gradients it leaves in the particles are not taken as a cell at rest; repeat per data file.",
+    )
+
+
+def parse_preparations(values: Sequence[str]) -> tuple[tuple[str, str], ...]:
+    """``DATA=PREP`` texts → (DATA, PREP) pairs, each preparation's file checked to exist."""
+    from pathlib import Path
+
+    out = []
+    for text in values:
+        data, sep, prep = text.partition("=")
+        if not sep or not data or not prep:
+            raise InputError(f"--preparation {text}: expected DATA=PREP (a data file and the log of its preparation)")
+        if not Path(prep).is_file():
+            raise InputError(f"--preparation {text}: {prep}: no such file")
+        out.append((data, prep))
+    return tuple(out)
+
+
 def parse_v_limits(text: str) -> tuple[float, float]:
     """``MIN,MAX`` [V] as (MIN, MAX): two numbers, each a :data:`VOLTAGE`, MIN below MAX."""
     try:

@@ -50,20 +50,25 @@ class Part:
     def n(self) -> int:
         return self.experiment.voltage.size
 
+    @property
+    def held(self) -> slice:
+        """The held-out samples (never the unscored lead-in)."""
+        return slice(max(self.train, self.experiment.lead_in), self.n)
+
     def training(self) -> Experiment | None:
-        """The training samples as an experiment of their own (None: fewer than 10)."""
+        """The training samples as an experiment of their own, with its lead-in (None: fewer than 10 scored)."""
+        from dataclasses import replace
+
         e = self.experiment
-        if self.train < 10:
+        if self.train - e.lead_in < 10:
             return None
         if self.train >= self.n:
             return e
         k = self.train
         prof = Profile(e.profile.t[:k], e.profile.current[:k], id=e.name, soc0=e.soc0)
         var = np.broadcast_to(np.asarray(e.variance, float), (self.n,))[:k]
-        T = None if e.temperature is None else e.temperature[:k]
-        return Experiment(
-            e.name, prof, e.voltage[:k], e.soc0, var, e.ambient, e.T0, temperature=T, t_variance=e.t_variance
-        )
+        cut = {f: getattr(e, f)[:k] for f in ("temperature", "truth", "mask") if getattr(e, f) is not None}
+        return replace(e, profile=prof, voltage=e.voltage[:k], variance=var, **cut)
 
 
 def split(data_parts: list[tuple[str, list[Experiment]]], held_out: str | None) -> tuple[list[Part], str]:
@@ -75,7 +80,7 @@ def split(data_parts: list[tuple[str, list[Experiment]]], held_out: str | None) 
         cut = int(round((1.0 - HELD_OUT_FRACTION) * total))
         parts, seen = [], 0
         for e in exps:
-            parts.append(Part(e, int(np.clip(cut - seen, 0, e.voltage.size))))
+            parts.append(Part(e, int(np.clip(cut - seen, 0, e.voltage.size))))  # a lead-in is never held out
             seen += e.voltage.size
         return parts, f"{name} (final {100 * HELD_OUT_FRACTION:.0f} %)"
     hold = data_parts[-1][0] if held_out is None else held_out
@@ -147,8 +152,12 @@ def prepare(
     ambient: Ambient,
     dt: float,
     fix_sign: bool,
+    preparations: Sequence[tuple[str | Path, str | Path]] = (),
 ) -> Prepared:
-    """Load, check and split the data (see the module docstring)."""
+    """Load, check and split the data (see the module docstring). ``preparations``: (data file, the log of its
+    preparation): the file's first experiment starts at the preparation's full charge, the preparation simulated as
+    its unscored lead-in (:func:`battlab.identify.runlog.after_preparation`)."""
+    from battlab.identify import runlog
     from battlab.identify.experiments import experiments_from_data
 
     base = _base(cell)
@@ -157,12 +166,16 @@ def prepare(
         paths.append(str(held_out))
     check_ambient_keys(paths, ambient)
     loaded, warned = load_all(paths, fix_sign=fix_sign)
+    preps = _preparation_logs(preparations, fix_sign)
     hold_name: str | None = None
     data_parts: list[tuple[str, list[Experiment]]] = []
     for p, d in zip(paths, loaded, strict=True):
         _check_capacity(d, base)
         exps = experiments_from_data(d, base, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
-        data_parts.append((d.name, [_measured_noise(e, base) for e in exps]))
+        exps = [_measured_noise(e, base) for e in exps]
+        if Path(p).resolve() in preps and exps:
+            exps[0] = runlog.after_preparation(exps[0], preps[Path(p).resolve()], base)
+        data_parts.append((d.name, exps))
         if held_out is not None and str(held_out) in _file_key(p, d):
             hold_name = d.name
     parts, held_name = split(data_parts, hold_name)
@@ -172,6 +185,14 @@ def prepare(
     if all(p.train >= p.n for p in parts):
         raise InputError("diagnose: no held-out data (a file given as --held-out must be one of the data)")
     return Prepared(cell, base, parts, train, held_name, [name for name, _ in data_parts], list(warned))
+
+
+def _preparation_logs(preparations: Sequence[tuple[str | Path, str | Path]], fix_sign: bool) -> dict[Path, Any]:
+    """The preparations' logs by their data file's resolved path."""
+    if not preparations:
+        return {}
+    loaded, _ = load_all([str(b) for _, b in preparations], fix_sign=fix_sign)
+    return {Path(a).resolve(): d for (a, _), d in zip(preparations, loaded, strict=True)}
 
 
 def simulate_on(fm: Any, e: Experiment, names: Sequence[str] = ()) -> Any:

@@ -72,7 +72,7 @@ def held_out(fm: object, cell: Cell, parts: Sequence[Part], temperature: bool = 
         v[:k] = out.voltage
         t = e.profile.t - e.profile.t[0] + offset
         offset = float(t[-1]) + 1.0
-        held = slice(p.train, p.n)
+        held = p.held
         eV.append((v - e.voltage)[held])
         tV.append(t[held])
         sV.append(np.sqrt(np.broadcast_to(np.asarray(e.variance, float), (p.n,)))[held])
@@ -82,7 +82,7 @@ def held_out(fm: object, cell: Cell, parts: Sequence[Part], temperature: bool = 
             T[:k] = out.T_surface
             eT.append((T - e.temperature)[held])
             tT.append(t[held])
-            sT.append(np.full(p.n - p.train, np.sqrt(e.t_variance)))
+            sT.append(np.full(held.stop - held.start, np.sqrt(e.t_variance)))
 
     def cat(x: list[np.ndarray]) -> np.ndarray:
         return np.concatenate(x) if x else np.zeros(0)

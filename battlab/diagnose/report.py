@@ -116,9 +116,8 @@ class DiagnosisReport:
                 f"not testable here: {c['cause']} ({c['why']}); would tell: {c['kind']} profile, {c['experiment']}"
             )
         for c in s.get("undetectable", []):
-            lines.append(
-                f"too small to see: {c['cause']} ({c['why']}); would show: {c['kind']} profile, {c['experiment']}"
-            )
+            label = "hidden, not ruled out" if "hidden_by" in c else "too small to see"
+            lines.append(f"{label}: {c['cause']} ({c['why']}); would show: {c['kind']} profile, {c['experiment']}")
         for r in s.get("rounds", []):
             x = r["experiment"]
             lines.append(
@@ -197,8 +196,8 @@ class DiagnosisReport:
         ]
         undecided = [
             html.Paragraph(
-                f"{what}: {', '.join(c.get('causes', [c['cause']]))} ({c['why']}); would tell: {c['kind']} profile, "
-                f"{c['experiment']}"
+                f"{'hidden, not ruled out' if 'hidden_by' in c else what}: {', '.join(c.get('causes', [c['cause']]))} "
+                f"({c['why']}); would tell: {c['kind']} profile, {c['experiment']}"
             )
             for key, what in (
                 ("cannot_tell", "cannot tell"),

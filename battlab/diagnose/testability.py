@@ -67,12 +67,22 @@ def informed_columns(cause: str, sizes: dict[str, float]) -> list[int]:
     return keep or list(range(len(specs)))
 
 
+#: a cause whose effect lies this little (W-norm share) outside the free base parameters' directions is hidden
+#: behind them, not small: its undetectable size says what they take up, not what the data rule out
+HIDDEN_SHARE = 0.05
+
+
 def undetectable(
-    sizes: dict[str, dict[str, float]], skip: set[str], typical: dict[str, dict[str, float]]
+    sizes: dict[str, dict[str, float]],
+    skip: set[str],
+    typical: dict[str, dict[str, float]],
+    hidden: dict[str, tuple[float, list[str]]] | None = None,
 ) -> list[dict[str, Any]]:
     """Causes not seen whose typical size (:data:`battlab.diagnose.directions.TYPICAL`) is below the smallest these
     data would detect, for every parameter with a typical size: "too small to see" is then all that "no cause" says
-    about them. Each with the sizes and the experiment that would show it."""
+    about them. Each with the sizes and the experiment that would show it. ``hidden``: per cause (the share of its
+    effect outside the free base directions, the base parameters that mimic it); one below :data:`HIDDEN_SHARE`
+    is said to be hidden behind them (``"hidden_by"``), not small: these data do not rule it out at any size."""
     out = []
     for cause, det in sizes.items():
         typ = {n: v for n, v in typical.get(cause, {}).items() if n in det}
@@ -85,12 +95,15 @@ def undetectable(
             else f"{n} (mimicked by the base)"
             for n, v in typ.items()
         )
-        out.append(
-            cause_entry(
-                cause,
-                f"too small to see on these data: {below} goes undetected",
-                smallest_detectable={n: det[n] for n in typ},
-                typical=typ,
+        share, by = (hidden or {}).get(cause, (1.0, []))
+        if share < HIDDEN_SHARE and by:
+            why = (
+                f"hidden behind {', '.join(by)} on these data (only {100 * share:.1f} % of its effect lies outside "
+                f"the base parameters' directions): {below} is taken up by them, not ruled out"
             )
-        )
+            entry = cause_entry(cause, why, smallest_detectable={n: det[n] for n in typ}, typical=typ, hidden_by=by)
+        else:
+            why = f"too small to see on these data: {below} goes undetected"
+            entry = cause_entry(cause, why, smallest_detectable={n: det[n] for n in typ}, typical=typ)
+        out.append(entry)
     return out

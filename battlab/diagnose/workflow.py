@@ -107,7 +107,9 @@ class DiagnoseOptions:
     path or file name among the data, or another file, to hold out; ``ambient`` [K] for data that do not log it;
     ``causes``: catalog keys to test (default :data:`battlab.diagnose.directions.DEFAULT_CAUSES`); ``also_fit``:
     causes whose extension is fitted on the same terms as a confirmation whatever the score tests say, reported in
-    the summary's ``also_fitted`` (not used in the decision: an outside check of what the data can show)."""
+    the summary's ``also_fitted`` (not used in the decision: an outside check of what the data can show);
+    ``preparations``: (data file, the log of its preparation) pairs, each file started at its preparation's full charge
+    with the preparation as unscored lead-in (:func:`battlab.diagnose.data.prepare`)."""
 
     data: tuple[str | Path, ...]
     cell: Cell | str | Path
@@ -120,12 +122,18 @@ class DiagnoseOptions:
     alpha: float = ALPHA
     max_iter: int = 20
     also_fit: tuple[str, ...] = ()
+    preparations: tuple[tuple[str | Path, str | Path], ...] = ()
 
     def __post_init__(self) -> None:
         from battlab.diagnose.directions import DEFAULT_CAUSES
 
         object.__setattr__(self, "data", tuple(self.data))
         object.__setattr__(self, "also_fit", tuple(self.also_fit))
+        object.__setattr__(self, "preparations", tuple((str(a), str(b)) for a, b in self.preparations))
+        given = {Path(p).resolve() for p in (*self.data, *(() if self.held_out is None else (self.held_out,)))}
+        for d, _ in self.preparations:
+            if Path(d).resolve() not in given:
+                raise InputError(f"--preparation {d}=…: {d} is not one of the data files")
         if self.causes is not None:
             object.__setattr__(self, "causes", tuple(self.causes) or None)
         for c in (*(self.causes or ()), *self.also_fit):
@@ -195,15 +203,16 @@ def residual_step(prep: Prepared, fm: Any) -> Residuals:
             prep.warnings.append(
                 f"{e.name}: the simulation stopped at {100 * n / e.voltage.size:.1f} % ({out.ended_by})"
             )
+        a = min(e.lead_in, n - 1)  # the unscored lead-in is simulated, not analysed
         t = e.profile.t[:n]
-        ts.append(t - t[0] + offset)
-        offset = float(ts[-1][-1]) + 1.0
-        rs.append(e.voltage[:n] - out.voltage)
         i = e.profile.current[:n]
-        cur.append(i)
         q = np.concatenate([[0.0], np.cumsum(i[:-1] * np.diff(t))]) / 3600.0
-        socs.append(e.soc0 + q / float(prep.base.capacity()))
-        nvar.append(np.broadcast_to(np.asarray(e.variance, float), (e.voltage.size,))[:n])
+        ts.append(t[a:] - t[a] + offset)
+        offset = float(ts[-1][-1]) + 1.0
+        rs.append((e.voltage[:n] - out.voltage)[a:])
+        cur.append(i[a:])
+        socs.append((e.soc0 + q / float(prep.base.capacity()))[a:])
+        nvar.append(np.broadcast_to(np.asarray(e.variance, float), (e.voltage.size,))[a:n])
     tt, rr, ii, ss, vv = (np.concatenate(x) for x in (ts, rs, cur, socs, nvar))
     analysis = residuals.analyse(tt, rr + 0.0, np.zeros_like(rr), ii, soc=ss, noise_variance=vv)
     return Residuals(tt, rr, ii, ss, vv, analysis)
@@ -229,17 +238,19 @@ def _training_channels(prep: Prepared, fm: Any, keys: Sequence[str], say: Report
             )
         }
         n = min([b.voltage.size, *(d.S.shape[0] for d in dirs.values())])
-        t = e.profile.t[:n] - e.profile.t[0] + offset
+        a = min(e.lead_in, n - 1)  # rows [a, n): the unscored lead-in carries the state, it is not a channel row
+        t = e.profile.t[a:n] - e.profile.t[a] + offset
         offset = float(t[-1]) + 1.0
         use_T = e.has_temperature and b.T_surface is not None and b.dT is not None
-        blocks = [(e.voltage[:n] - b.voltage[:n], b.sensitivities[:n], 1.0 / np.asarray(e.variance, float)[:n], False)]
+        w_V = np.broadcast_to(1.0 / np.asarray(e.variance, float), (e.voltage.size,))
+        blocks = [(e.voltage[a:n] - b.voltage[a:n], b.sensitivities[a:n], w_V[a:n], False)]
         if use_T:
             assert e.temperature is not None
-            ok = np.isfinite(e.temperature[:n])
+            ok = np.isfinite(e.temperature[a:n])
             blocks.append(
                 (
-                    np.where(ok, e.temperature[:n] - b.T_surface[:n], 0.0),
-                    b.dT[:n],
+                    np.where(ok, e.temperature[a:n] - b.T_surface[a:n], 0.0),
+                    b.dT[a:n],
                     np.where(ok, 1.0 / e.t_variance, 0.0),
                     True,
                 )
@@ -252,7 +263,7 @@ def _training_channels(prep: Prepared, fm: Any, keys: Sequence[str], say: Report
             rows["T"].append(np.full(r.size, is_T))
             for k, d in dirs.items():
                 S = d.S_T if is_T else d.S
-                S_rows.setdefault(k, []).append(np.zeros((n, d.S.shape[1])) if S is None else S[:n])
+                S_rows.setdefault(k, []).append(np.zeros((n - a, d.S.shape[1])) if S is None else S[a:n])
     cat = {k: np.concatenate(v) for k, v in rows.items()}
     S = {k: np.concatenate(v) for k, v in S_rows.items() if len(v) == len(rows["r"])}
     return Channels(cat["r"], cat["J"], S, cat["w"], cat["t"], cat["T"].astype(bool))
@@ -473,9 +484,14 @@ def summarise(prep: Prepared, res: Residuals, sc: Scores, d: Decision, o: Diagno
         | {s.cause for s in sc.passing}
         | {k for c in undecided + untestable for k in c.get("causes", [c["cause"]])}
     )
-    undetectable = testability.undetectable(sc.sizes, seen, TYPICAL)
-    if undetectable:
-        verdict += "; too small to see on these data: " + ", ".join(c["cause"] for c in undetectable)
+    hidden = {s.cause: (s.projected_norm, sc.mimics.get(s.cause, [])) for s in sc.ranked}
+    undetectable = testability.undetectable(sc.sizes, seen, TYPICAL, hidden)
+    small = [c["cause"] for c in undetectable if "hidden_by" not in c]
+    behind = [f"{c['cause']} (by {', '.join(c['hidden_by'])})" for c in undetectable if "hidden_by" in c]
+    if small:
+        verdict += "; too small to see on these data: " + ", ".join(small)
+    if behind:
+        verdict += "; hidden behind base parameters, not ruled out: " + ", ".join(behind)
     chosen = v.chosen
     gain = {
         "rmse_before_mV": v.base.rmse_mV,
@@ -541,7 +557,16 @@ def diagnose(options: DiagnoseOptions, subscribers: Sequence[Subscriber] = ()) -
     t_start = time.perf_counter()
     say = Reporter("diagnose", subscribers)
     cell = o.cell if isinstance(o.cell, Cell) else Cell.load(o.cell)
-    prep = prepare(o.data, cell, held_out=o.held_out, soc0=o.soc0, ambient=o.ambient, dt=o.dt, fix_sign=o.fix_sign)
+    prep = prepare(
+        o.data,
+        cell,
+        held_out=o.held_out,
+        soc0=o.soc0,
+        ambient=o.ambient,
+        dt=o.dt,
+        fix_sign=o.fix_sign,
+        preparations=o.preparations,
+    )
     say("note", text="simulating the cell on the data")
     fm = ForwardModel(prep.base, v_margin=V_MARGIN)
     res = residual_step(prep, fm)

@@ -29,13 +29,16 @@ class FitSettings:
     """The stopping rule and defaults of every cumulative fit: ``max_evaluations`` simulations per stage, of which
     up to ``polish`` for Gauss–Newton steps after the optimiser stops at its limit (:data:`battlab.identify.fit.
     Options`); ``hold_radii``: fit the identifiable coordinates; ``refuse_uninformed``: refuse parameters the data
-    cannot inform; ``workers``: threads per evaluation (None: one per core; results do not depend on it)."""
+    cannot inform; ``workers``: threads per evaluation (None: one per core; results do not depend on it);
+    ``soc_span`` > 0: each experiment's start SOC is fitted within ± ``soc_span`` of where the last stage left it
+    (:func:`battlab.identify.fit.fit`; for measurements whose start SOC comes from a still-relaxing rest voltage)."""
 
     max_evaluations: int = 40
     polish: int = 8
     hold_radii: bool = True
     refuse_uninformed: bool = True
     workers: int | None = None
+    soc_span: float = 0.0
 
     def options(self) -> F.Options:
         return F.Options(max_nfev=self.max_evaluations, polish=self.polish, workers=self.workers)
@@ -86,8 +89,10 @@ def fit_cumulative(
     exps: list[Experiment] = []
     results: list[FitResult] = []
     opts = settings.options()
+    socs: dict[str, float] = {}  # start SOCs fitted so far (soc_span > 0)
     for k, (stg, (fitted, held)) in enumerate(zip(stages, plan, strict=True), start=1):
         exps += list(stg.experiments)
+        exps = [replace(e, soc0=socs[e.name]) if e.name in socs else e for e in exps]
         rep = progress.child(f"stage {k} of {len(stages)}") if progress is not None else None
 
         def tick(n: int, cost: float, _rep: Reporter | None = rep) -> None:
@@ -98,8 +103,18 @@ def fit_cumulative(
             if rep is not None:
                 rep("start", 0, opts.max_nfev, f"{len(fitted)} parameters, {len(exps)} experiments")
             res = F.fit(
-                cell, exps, fitted, options=opts, forward=fm, start=current, stage=k, ageing=ageing, on_evaluation=tick
+                cell,
+                exps,
+                fitted,
+                options=opts,
+                forward=fm,
+                start=current,
+                stage=k,
+                soc_span=settings.soc_span,
+                ageing=ageing,
+                on_evaluation=tick,
             )
+            socs.update(res.extra.get("soc0", {}))
             if ageing is not None:
                 values = res.extra.get("ageing", {})
                 ageing = ageing.with_start({f: {n: v["value"] for n, v in d.items()} for f, d in values.items()})

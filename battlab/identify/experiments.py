@@ -146,7 +146,10 @@ def resample(
     q = q_at(grid)
     i = np.empty(grid.size)
     i[:-1] = np.diff(q) / dt
-    i[-1] = i[-2]
+    # the last grid time has no bin: the current logged there (a row within 1 % of dt after it is the same instant,
+    # as for the voltage below); copying the last bin's put a square wave's final pulse against the rest voltage
+    # logged a millisecond later: 566 mV at one sample, s² x 100 on a 600 s pulse train
+    i[-1] = current[np.searchsorted(t, grid[-1] + 0.01 * dt, side="right") - 1]
     right = np.r_[np.diff(t) > 0.01 * dt, True]
     return grid - grid[0], i, np.interp(grid, t[right], voltage[right])
 

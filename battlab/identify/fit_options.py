@@ -16,6 +16,9 @@ from protocols.errors import InputError
 FULL_CHARGE = ("v-max", "ocv-start")
 #: the OCV test's branches that make the pseudo-OCV
 OCV_BRANCHES = ("both", "discharge", "charge")
+#: the start-SOC span of measurements with a logged preparation: their rest voltage after a 30 min rest is still
+#: relaxing (on nca18650-true a few tenths of a percent of SOC from the end state)
+PREPARED_SOC_SPAN = 0.01
 
 
 def _opt(help: str, **cli: Any) -> Any:
@@ -72,6 +75,16 @@ class FitOptions:
     ambient: Ambient = None
     dt: float = field(default=1.0, metadata=_opt("Resample dynamic data to this step [s]."))
     max_iter: int = field(default=40, metadata=_opt("Function evaluations per stage."))
+    #: (data file, the log of its preparation): the measurement starts with the preparation as unscored lead-in
+    #: (:func:`battlab.identify.runlog.after_preparation`); the CLI's ``--preparation DATA=PREP``
+    preparations: tuple[tuple[str | Path, str | Path], ...] = ()
+    soc_span: float | None = field(
+        default=None,
+        metadata=_opt(
+            "Fit each experiment's start SOC within +- this of its rest-voltage SOC (a measurement started after a "
+            "short rest, whose rest voltage is still relaxing) [default: 0.01 with --preparation, else 0].",
+        ),
+    )
     polish: int = field(
         default=8,
         metadata=_opt(
@@ -118,11 +131,22 @@ class FitOptions:
             raise InputError(f"max_iter {self.max_iter}: at least 1 evaluation per stage")
         if self.dt <= 0:
             raise InputError(f"dt {self.dt:g} s: the resampling step must be positive")
+        object.__setattr__(self, "preparations", tuple((str(a), str(b)) for a, b in self.preparations))
+        given = {Path(p).resolve() for p in self.data}
+        for d, _ in self.preparations:
+            if Path(d).resolve() not in given:
+                raise InputError(f"--preparation {d}=…: {d} is not one of the data files")
+        if self.soc_span is None:
+            object.__setattr__(self, "soc_span", PREPARED_SOC_SPAN if self.preparations else 0.0)
+        if not 0.0 <= self.soc_span <= 0.5:
+            raise InputError(f"soc span {self.soc_span:g}: expected between 0 and 0.5")
 
     @property
     def settings(self) -> FitSettings:
         """The cumulative fit's settings (the same defaults as the campaign's)."""
-        return FitSettings(max_evaluations=self.max_iter, polish=self.polish, hold_radii=self.hold_radii)
+        return FitSettings(
+            max_evaluations=self.max_iter, polish=self.polish, hold_radii=self.hold_radii, soc_span=self.soc_span or 0.0
+        )
 
     def start_cell(self) -> Cell:
         return self.cell if isinstance(self.cell, Cell) else Cell.load(self.cell)

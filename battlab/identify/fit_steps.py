@@ -7,13 +7,14 @@ from __future__ import annotations
 import copy
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from battlab.cell import Cell
 from battlab.identify import ageing as A
 from battlab.identify import fit_summary
 from battlab.identify.cumulative import StageError, check_stages_informed, fit_cumulative
-from battlab.identify.data_files import ambient_of
+from battlab.identify.data_files import ambient_of, load_all
 from battlab.identify.fit_options import FitOptions
 from battlab.identify.fit_plan import full_charge_at_ocv_start, stages, unique_names
 from battlab.identify.fit_report import EquilibriumDone, FitReport, StageDone, StageFailed, ValuesDone
@@ -105,15 +106,26 @@ def experiments_of(o: FitOptions, dyn: Sequence[Any], cell: Cell) -> tuple[list[
     from battlab.io.plan import Plan
 
     plan = Plan.load(o.plan) if o.plan is not None else None
-    pairs = [
-        (e, d.name)
-        for d in dyn
-        for e in runlog.experiments(
+    preps = _preparations(o)
+    pairs = []
+    for d in dyn:
+        es = runlog.experiments(
             d, cell, plan=plan, plan_name=str(o.plan), dt=o.dt, soc0=o.soc0, ambient=ambient_of(d, o.ambient)
         )
-    ]
+        prep = preps.get(Path(d.source).resolve()) if d.source else None
+        if prep is not None and es:  # the measurement's first experiment starts with its preparation
+            es[0] = runlog.after_preparation(es[0], prep, cell)
+        pairs += [(e, d.name) for e in es]
     exps = unique_names([e for e, _ in pairs])
     return exps, {e.name: f for e, (_, f) in zip(exps, pairs, strict=True)}
+
+
+def _preparations(o: FitOptions) -> dict[Path, Any]:
+    """The preparations' logs by their measurement's resolved path."""
+    if not o.preparations:
+        return {}
+    loaded, _ = load_all([p for _, p in o.preparations], fix_sign=o.fix_sign)
+    return {Path(d).resolve(): prep for (d, _), prep in zip(o.preparations, loaded, strict=True)}
 
 
 def _prepare(o: FitOptions, dyn: Sequence[Any], cell: Cell, report: FitReport) -> _Dynamic:

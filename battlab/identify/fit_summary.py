@@ -111,6 +111,8 @@ def dynamic_summary(results: Sequence[FitResult], total: int, base: dict[str, An
     out["status"] = ("partial: " if partial else "complete: ") + stages_text(len(results), total)
     out["stages_done"], out["stages_total"] = len(results), total
     out["stages"] = [r.report() for r in results]
+    if "soc0" in last.extra:  # start SOCs fitted per experiment (a nuisance the statistics are marginal over)
+        out["start_soc"] = {k: float(v) for k, v in last.extra["soc0"].items()}
     held = [e.name for e in st.estimates if e.name not in last.names]
     if held:
         out["held"] = {e.name: e.value for e in st.estimates if e.name in held}

@@ -203,6 +203,26 @@ def plan_experiments(
     return out
 
 
+def after_preparation(e: Experiment, prep: LoggedData, cell: Cell) -> Experiment:
+    """``e`` (a measurement that starts at rest, logged on its own) with its preparation, logged separately as
+    ``prep`` (a run whose plan step 1 charges to full and step 2 rests; then the adjustment to the profile's start SOC
+    and a rest), as its unscored lead-in (:func:`with_lead_in`): from the rest after the full charge through the
+    adjustment and the rest, so that the gradients the adjustment leaves in the particles are simulated instead of
+    taken as a uniform cell at rest (on nca18650-true, τ⁻ ≈ 4.3 h: after a 30 min rest a 0.2-SOC adjustment at C/2
+    leaves s² 27 on a 30-min pulse profile, 541 after a 0.6-SOC one). Its start SOC is ``e``'s (from the rest
+    voltage) minus the charge passed since the full charge; the rest voltage is itself still relaxing, so a fit
+    frees the start SOC per experiment (:class:`battlab.identify.cumulative.FitSettings` ``soc_span``)."""
+    step2 = prep.columns[STEP_INDEX] == 2 if STEP_INDEX in prep.columns else np.zeros(len(prep), bool)
+    first = np.flatnonzero(step2)
+    where = prep.source or prep.name
+    if first.size == 0 or len(prep) < 3 or np.max(np.abs(prep.current[step2])) > 0.01 * float(cell["Q_nom"]):
+        raise InputError(f"{where}: no rest after a full charge (plan step 2) to start the lead-in from")
+    a, b = int(first[0]), len(prep) - 1
+    passed = float(np.sum(prep.current[a:b] * np.diff(prep.t[a : b + 1]))) / 3600.0
+    soc0 = float(np.clip(e.soc0 - passed / cell.capacity(), 0.0, 1.0))
+    return with_lead_in(e, prep, a, b, soc0)
+
+
 def with_lead_in(e: Experiment, data: LoggedData, a: int, b: int, soc0: float, dt: float = LEAD_IN_DT) -> Experiment:
     """``e`` (whose profile starts at row ``b`` of ``data``) started at row ``a``: the logged current of rows [a, b)
     in charge-conserving bins of about ``dt`` [s] before ``e``'s samples, as its unscored lead-in, from a uniform
@@ -322,5 +342,6 @@ __all__ = [
     "plan_experiments",
     "profile_runs",
     "repeated_trials",
+    "after_preparation",
     "with_lead_in",
 ]

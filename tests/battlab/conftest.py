@@ -256,3 +256,71 @@ def _hidden_effect_data(
 def hidden_effect_csv() -> Callable[..., str]:
     """``hidden_effect_csv(path, extension=None, seed=1, **values)``: see :func:`_hidden_effect_csv`."""
     return _hidden_effect_csv
+
+
+def _stepped_log(path: Path, steps: list[tuple[int, np.ndarray, np.ndarray, float]]) -> Path:
+    """A run log (HDF5) of (plan step index, current [A], voltage [V], sample period [s]) steps at 25 degC, 1 ms
+    between steps' rows."""
+    from battlab.io.logged import CYCLE, NET_CAPACITY, STEP, STEP_INDEX
+    from battlab.lab import logfile
+
+    cols: dict[str, list[np.ndarray]] = {c: [] for c in logfile.COLUMNS}
+    t0, q = 0.0, 0.0
+    for k, (index, i, v, dt) in enumerate(steps, start=1):
+        t = t0 + dt * np.arange(i.size)
+        ah = q + np.concatenate([[0.0], np.cumsum(i[:-1] * dt)]) / 3600.0
+        for c, x in (
+            ("Test Time / s", t),
+            ("Unix Time / s", 1.7e9 + t),
+            ("Step Time / s", t - t0),
+            ("Voltage / V", v),
+            ("Current / A", i),
+            ("Surface Temperature T1 / degC", np.full(i.size, 25.0)),
+            ("Ambient Temperature / degC", np.full(i.size, 25.0)),
+            (STEP, np.full(i.size, float(k))),
+            (STEP_INDEX, np.full(i.size, float(index))),
+            (CYCLE, np.ones(i.size)),
+            (NET_CAPACITY, ah),
+        ):
+            cols[c].append(x)
+        t0, q = float(t[-1]) + dt + 1e-3, float(ah[-1] + i[-1] * dt / 3600.0)
+    w = logfile.create(path, logfile.COLUMNS, {"cell": "nca18650", "soc0": None})
+    w.append({c: np.concatenate(v) for c, v in cols.items()})
+    w.close({"status": "completed"})
+    return path
+
+
+@pytest.fixture
+def stepped_log() -> Callable[[Path, list[tuple[int, np.ndarray, np.ndarray, float]]], Path]:
+    """``stepped_log(path, steps)``: see :func:`_stepped_log`."""
+    return _stepped_log
+
+
+def _prepared_measurement(directory: Path) -> tuple[Path, Path]:
+    """(preparation log, measurement log) on nca18650's OCV: a full charge, a rest, 0.54 Ah at C/2 and a 30 min rest
+    to SOC 0.8; then a 1-min rest and a 100 s 4 A discharge pulse with 100 s of rest."""
+    from battlab.cell import Cell
+
+    cell = Cell.load("nca18650")
+    v_full, v08 = float(cell.ocv(0.99)), float(cell.ocv(0.8))
+    prep = _stepped_log(
+        directory / "48_prep.h5",
+        [
+            (1, np.full(30, 0.9), np.full(30, 4.2), 10.0),  # the CCCV (its start state is not used)
+            (2, np.zeros(60), np.full(60, v_full), 10.0),  # rest after the full charge: the lead-in starts here
+            (3, np.full(144, -1.35), np.linspace(4.1, 3.86, 144), 10.0),  # 0.54 Ah at C/2
+            (4, np.zeros(180), np.full(180, v08), 10.0),
+        ],
+    )
+    profile = np.r_[np.full(100, -4.0), np.zeros(100)]
+    meas = _stepped_log(
+        directory / "48.h5",
+        [(1, np.zeros(60), np.full(60, v08), 1.0), (2, profile, np.linspace(3.7, 3.9, 200), 1.0)],
+    )
+    return prep, meas
+
+
+@pytest.fixture
+def prepared_measurement() -> Callable[[Path], tuple[Path, Path]]:
+    """``prepared_measurement(directory)`` → (preparation log, measurement log): see :func:`_prepared_measurement`."""
+    return _prepared_measurement

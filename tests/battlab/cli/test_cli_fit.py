@@ -327,3 +327,15 @@ def test_an_ocp_curve_that_is_not_one_is_one_line_before_any_data_is_read(tmp_pa
         text = result.output.strip()
         assert len(text.splitlines()) == 1 and "--ocp" in text and what in text, text
     assert not out.exists()
+
+
+def test_a_measurement_is_fitted_after_its_logged_preparation(tmp_path, prepared_measurement) -> None:
+    prep, meas = prepared_measurement(tmp_path)
+    out = tmp_path / "c.bpx.json"
+    args = ["fit", str(meas), "--cell", "nca18650", "--params", "R_f_n", "--max-iter", "2", "-o", str(out)]
+    r = CliRunner().invoke(main, [*args, "--preparation", f"{meas}={prep}"])
+    assert r.exit_code == 0, r.output
+    summary = json.loads((tmp_path / "c.summary.json").read_text())
+    # fitted from the full charge (SOC 1 - 0.01 at most) before the 0.54 Ah adjustment, not from SOC 0.8 at rest
+    (soc,) = summary["start_soc"].values()
+    assert 0.99 - 1e-9 <= soc <= 1.0

@@ -204,3 +204,19 @@ def test_a_mistyped_cell_or_cause_gets_a_suggestion(
     monkeypatch.chdir(tmp_path)
     r = CliRunner().invoke(main, args)
     assert r.exit_code == 2 and message in r.output and len(r.output.splitlines()) == 1, r.output
+
+
+@pytest.mark.parametrize("command", ["fit", "diagnose"])
+def test_a_bad_preparation_is_one_line_before_anything_is_simulated(
+    tmp_path: Path, prepared_measurement, command: str
+) -> None:
+    prep, meas = prepared_measurement(tmp_path)
+    args = [command, str(meas), "--cell", "nca18650", "-o", str(tmp_path / "out.json")]
+    for bad, says in (
+        (f"{meas}", "expected DATA=PREP"),
+        (f"{meas}={tmp_path / 'nope.h5'}", "nope.h5: no such file"),
+        (f"{tmp_path / 'other.h5'}={prep}", "is not one of the data files"),
+    ):
+        r = CliRunner().invoke(main, [*args, "--preparation", bad])
+        assert r.exit_code == 2 and says in r.output and "Traceback" not in r.output, r.output
+        assert len(r.output.strip().splitlines()) == 1, r.output

@@ -242,3 +242,31 @@ def test_the_held_out_decision_names_a_clear_win_pairs_alike_fits_and_names_noth
     assert alike.cause is None and sorted(alike.pairs[0]) == ["contact_resistance", "kinetics"]
     (pair,) = cannot_tell(alike, [])
     assert "temperature" in pair["experiment"] and sorted(pair["causes"]) == ["contact_resistance", "kinetics"]
+
+
+def test_a_prepared_measurement_is_diagnosed_after_its_lead_in_which_is_simulated_never_analysed(
+    tmp_path, prepared_measurement
+) -> None:
+    import battlab
+    from battlab.diagnose.data import prepare
+    from battlab.diagnose.workflow import DiagnoseOptions, residual_step
+    from battlab.identify.forward import ForwardModel
+
+    prep_log, meas = prepared_measurement(tmp_path)
+    cell = battlab.Cell.load("nca18650")
+    args = dict(held_out=None, soc0=None, ambient=None, dt=1.0, fix_sign=False)
+    plain = prepare([meas], cell, **args)
+    led = prepare([meas], cell, **args, preparations=[(meas, prep_log)])
+    (p0,), (p1,) = plain.parts, led.parts
+    e = p1.experiment
+    assert p0.experiment.lead_in == 0 and e.lead_in > 0 and e.voltage.size == e.lead_in + p0.n
+    # the final 30 % held out is counted over all rows, the lead-in never among them
+    assert p1.held.start == max(p1.train, e.lead_in) and p1.held.stop == p1.n
+    (train,) = led.train
+    assert train.lead_in == e.lead_in and not train.mask[: e.lead_in].any() and train.mask[e.lead_in :].all()
+    res = residual_step(led, ForwardModel(led.base, v_margin=0.15))
+    assert res.r.size == p0.n  # only the measurement's own rows are analysed
+    np.testing.assert_allclose(res.current, p0.experiment.profile.current)
+    assert res.t[0] == 0.0 and res.soc[0] == pytest.approx(p0.experiment.soc0, abs=0.02)
+    with pytest.raises(InputError, match=r"--preparation .*other\.h5=.*not one of the data files"):
+        DiagnoseOptions([meas], "nca18650", preparations=[(tmp_path / "other.h5", prep_log)])

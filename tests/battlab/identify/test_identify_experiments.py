@@ -147,3 +147,18 @@ def test_resampled_voltage_is_the_right_limit_at_a_step_change() -> None:
     assert vv[65] == pytest.approx(np.interp(65.0, t[61:], voltage[61:]))
     # the charge keeps every row: ∫ I dt up to the grid's last time (69 s) equals the log's
     assert np.sum(ii[:-1]) == pytest.approx(-12.0 * (69.0 - 60.001), rel=1e-9)
+
+
+def test_the_last_resampled_current_is_the_one_logged_with_the_last_voltage() -> None:
+    """A 1 s square wave logged 1 ms late on each sample (as a run log's profile step is): the grid's last time has
+    no bin of its own, and its current is the row logged there, paired with that row's voltage, not the last
+    bin's (which put the final pulse's -12 A against the rest voltage)."""
+    from battlab.identify.experiments import resample
+
+    t = 0.001 + np.arange(0.0, 600.0) + 0.001 * (np.arange(600) > 0)
+    current = np.where(np.arange(600) % 2 == 0, -12.0, 0.0)
+    voltage = np.where(current < 0, 2.75, 3.32)
+    tt, ii, vv = resample(t, current, voltage, 1.0)
+    loaded = ii < -6.0
+    assert loaded.sum() == 300 and np.all(vv[loaded] < 3.0) and np.all(vv[~loaded] > 3.0)
+    assert ii[-1] == pytest.approx(0.0, abs=0.02) and vv[-1] == pytest.approx(3.32, abs=1e-3)

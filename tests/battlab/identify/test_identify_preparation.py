@@ -1,0 +1,70 @@
+"""A measurement fitted after its logged preparation: the lead-in, the fitted start SOC carried through the stages."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from battlab import Cell, InputError
+from battlab.identify import fit as F
+from battlab.identify.cumulative import FitSettings, fit_cumulative
+from battlab.identify.data_files import load_all
+from battlab.identify.fit_options import PREPARED_SOC_SPAN, FitOptions
+from battlab.identify.fit_steps import experiments_of
+
+
+def test_a_prepared_measurement_starts_at_the_full_charge_with_its_preparation_unscored(
+    tmp_path: Path, prepared_measurement
+) -> None:
+    cell = Cell.load("nca18650")
+    prep, meas = prepared_measurement(tmp_path)
+    dyn, _ = load_all([str(meas)])
+    (plain,), _ = experiments_of(FitOptions((str(meas),), "nca18650"), dyn, cell)
+    # the preparation named by another spelling of the same path
+    other = str(tmp_path / "." / meas.name)
+    o = FitOptions((str(meas),), "nca18650", preparations=((other, str(prep)),))
+    (e,), files = experiments_of(o, dyn, cell)
+    assert plain.lead_in == 0 and e.lead_in > 0 and files == {e.name: meas.stem}
+    assert e.mask[: e.lead_in].sum() == 0
+    np.testing.assert_allclose(e.scored_voltage, plain.voltage)
+    charge = float(np.sum(e.profile.current[: e.lead_in] * np.diff(e.profile.t[: e.lead_in + 1]))) / 3600.0
+    assert charge == pytest.approx(-0.54, rel=1e-3)
+    assert e.soc0 == pytest.approx(min(1.0, plain.soc0 - charge / cell.capacity()), abs=1e-6)
+    assert o.soc_span == PREPARED_SOC_SPAN and FitOptions((str(meas),), "nca18650").soc_span == 0.0
+
+
+def test_a_preparation_of_no_data_file_or_a_bad_span_is_one_clear_error(tmp_path: Path, prepared_measurement) -> None:
+    prep, meas = prepared_measurement(tmp_path)
+    with pytest.raises(InputError, match=r"--preparation other\.h5=.*not one of the data files"):
+        FitOptions((str(meas),), "nca18650", preparations=(("other.h5", str(prep)),))
+    with pytest.raises(InputError, match="soc span 0.7: expected between 0 and 0.5"):
+        FitOptions((str(meas),), "nca18650", soc_span=0.7)
+
+
+def test_each_stage_starts_each_experiment_where_the_last_stage_fitted_its_start_soc(
+    tmp_path: Path, prepared_measurement, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cell = Cell.load("nca18650")
+    prep, meas = prepared_measurement(tmp_path)
+    dyn, _ = load_all([str(meas)])
+    o = FitOptions((str(meas),), "nca18650", preparations=((str(meas), str(prep)),))
+    (e,), _ = experiments_of(o, dyn, cell)
+    e = replace(e, soc0=0.97)  # inside the span: the fit may move it both ways
+    calls: list[tuple[float, dict[str, float]]] = []
+    real = F.fit
+
+    def spy(c: Cell, exps: list, *args: object, **kwargs: object) -> F.FitResult:
+        res = real(c, exps, *args, **kwargs)
+        calls.append((exps[0].soc0, dict(res.extra["soc0"])))
+        return res
+
+    monkeypatch.setattr(F, "fit", spy)
+    stages = [F.Stage(("R_f_n",), (e,)), F.Stage(("R_f_p",), ())]
+    fit_cumulative(cell, stages, FitSettings(max_evaluations=3, polish=0, soc_span=o.soc_span))
+    (start1, fitted1), (start2, fitted2) = calls
+    assert start1 == 0.97 and abs(fitted1[e.name] - 0.97) <= o.soc_span + 1e-12
+    assert fitted1[e.name] != 0.97  # the rest-voltage SOC of this made-up log is not the cell's: the fit moves it
+    assert start2 == fitted1[e.name]
