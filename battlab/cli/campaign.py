@@ -162,6 +162,8 @@ def campaign(
     if dg is not None:
         g = dg.get("extension_gain") or {}
         found = f"cause {dg['cause']}" if dg.get("cause") else "no cause named"
+        if not dg.get("cause") and dg.get("suggested"):
+            found = f"no cause confirmed ({dg['suggested']} named by the diagnosis, not kept)"
         if g.get("rmse_after_mV") is not None:
             found += f", held-out RMSE {g['rmse_before_mV']:.2f} -> {g['rmse_after_mV']:.2f} mV after extending"
         rounds = dg.get("rounds") or []

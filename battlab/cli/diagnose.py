@@ -37,6 +37,14 @@ from battlab.cli.options import (
 @click.option("--fix-sign", is_flag=True, help="Flip a current logged with positive = discharge.")
 @preparation_option()
 @click.option(
+    "--full-charge-soc",
+    type=click.FloatRange(0.5, 1.0),
+    default=1.0,
+    show_default=True,
+    help="The SOC the preparations' full charge leaves (a fit with --preparation reports it: its summary's "
+    "start_soc); the lead-ins start there.",
+)
+@click.option(
     "--cause", "causes", multiple=True, help="Test only this catalog cause (repeat; default: every testable one)."
 )
 @max_iter_option("Function evaluations per held-out fit", default=20)
@@ -70,6 +78,7 @@ def diagnose(
     dt: float,
     fix_sign: bool,
     preparations: tuple[str, ...],
+    full_charge_soc: float,
     causes: tuple[str, ...],
     max_iter: int,
     decide: bool,
@@ -97,6 +106,7 @@ def diagnose(
         causes=causes or None,
         max_iter=max_iter,
         preparations=parse_preparations(preparations),
+        full_charge_soc=full_charge_soc,
     )
     echo = [lines(lambda text: click.echo(f"... {text}", err=True))]
     if decide:

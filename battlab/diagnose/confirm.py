@@ -285,10 +285,14 @@ def cannot_tell(v: Verdict, fits: Sequence[Candidate]) -> list[dict[str, Any]]:
         for f in fits:
             gain = 1.0 - f.held.metric / v.base.metric
             if SOME_GAIN <= gain < MIN_GAIN or (gain >= MIN_GAIN and f.key != "base"):
+                short = (
+                    f"short of the {100 * MIN_GAIN:.0f} % that name it"
+                    if gain < MIN_GAIN
+                    else "but not by the noise margin (the paired block test's standard errors) that names it"
+                )
                 e = testability.cause_entry(
                     f.key,
-                    f"passes its score test, and its fit lowers the held-out error by {100 * gain:.0f} %, "
-                    f"short of the {100 * MIN_GAIN:.0f} % and the noise margin that name it",
+                    f"passes its score test, and its fit lowers the held-out error by {100 * gain:.0f} %, {short}",
                 )
                 out.append({"causes": [f.key], **e})
     return out

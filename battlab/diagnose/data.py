@@ -153,10 +153,11 @@ def prepare(
     dt: float,
     fix_sign: bool,
     preparations: Sequence[tuple[str | Path, str | Path]] = (),
+    full_charge_soc: float = 1.0,
 ) -> Prepared:
     """Load, check and split the data (see the module docstring). ``preparations``: (data file, the log of its
     preparation): the file's first experiment starts at the preparation's full charge, the preparation simulated as
-    its unscored lead-in (:func:`battlab.identify.runlog.after_preparation`)."""
+    its unscored lead-in (:func:`battlab.identify.runlog.after_preparation`), from ``full_charge_soc``."""
     from battlab.identify import runlog
     from battlab.identify.experiments import experiments_from_data
 
@@ -174,7 +175,7 @@ def prepare(
         exps = experiments_from_data(d, base, dt=dt, soc0=soc0, ambient=ambient_of(d, ambient))
         exps = [_measured_noise(e, base) for e in exps]
         if Path(p).resolve() in preps and exps:
-            exps[0] = runlog.after_preparation(exps[0], preps[Path(p).resolve()], base)
+            exps[0] = runlog.after_preparation(exps[0], preps[Path(p).resolve()], base, full_charge_soc)
         data_parts.append((d.name, exps))
         if held_out is not None and str(held_out) in _file_key(p, d):
             hold_name = d.name

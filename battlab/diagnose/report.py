@@ -25,7 +25,7 @@ def headline(summary: Mapping[str, Any]) -> tuple[str, str]:
     cause = summary.get("cause")
     s2 = summary.get("residual_over_noise")
     known = isinstance(s2, (int, float)) and math.isfinite(s2)
-    noise = f"residual {s2:.3g} × the noise level" if known else "noise level unknown"
+    noise = f"residual s² {s2:.3g} over the noise variance" if known else "noise level unknown"
     undecided = ", ".join(c["cause"] for c in summary.get("cannot_tell", []))
     cannot = f"; cannot tell {undecided} on these data" if undecided else ""
     if cause:

@@ -109,7 +109,8 @@ class DiagnoseOptions:
     causes whose extension is fitted on the same terms as a confirmation whatever the score tests say, reported in
     the summary's ``also_fitted`` (not used in the decision: an outside check of what the data can show);
     ``preparations``: (data file, the log of its preparation) pairs, each file started at its preparation's full charge
-    with the preparation as unscored lead-in (:func:`battlab.diagnose.data.prepare`)."""
+    with the preparation as unscored lead-in (:func:`battlab.diagnose.data.prepare`), at ``full_charge_soc`` (1 by
+    definition; the SOC a fit of the same preparations found the full charge to leave)."""
 
     data: tuple[str | Path, ...]
     cell: Cell | str | Path
@@ -123,6 +124,7 @@ class DiagnoseOptions:
     max_iter: int = 20
     also_fit: tuple[str, ...] = ()
     preparations: tuple[tuple[str | Path, str | Path], ...] = ()
+    full_charge_soc: float = 1.0
 
     def __post_init__(self) -> None:
         from battlab.diagnose.directions import DEFAULT_CAUSES
@@ -148,6 +150,8 @@ class DiagnoseOptions:
             raise InputError(f"--soc0 {self.soc0:g}: a state of charge is between 0 and 1")
         if self.dt <= 0:
             raise InputError(f"--dt {self.dt:g} s: the resampling step must be positive")
+        if not 0.5 <= self.full_charge_soc <= 1.0:
+            raise InputError(f"full-charge SOC {self.full_charge_soc:g}: expected between 0.5 and 1")
 
 
 @dataclass
@@ -455,7 +459,8 @@ def _verdict_text(d: Decision, sc: Scores, s2: float, res: Residuals) -> str:
     if s2 > S2_REFIT:
         share = sc.share
         return (
-            f"the model misses these data: residual {rmse:.1f} mV RMSE, {s2:.3g} × the noise level; no single cause "
+            f"the model misses these data: residual {rmse:.1f} mV RMSE against {_noise_mV(rmse, s2):.2g} mV of noise "
+            f"(s² {s2:.3g}); no single cause "
             f"explains it on held-out data; share of the residual along each cause's own directions: "
             f"{share_text(share)}"
         )
@@ -464,7 +469,15 @@ def _verdict_text(d: Decision, sc: Scores, s2: float, res: Residuals) -> str:
             f"score tests passed ({', '.join(s.cause for s in sc.passing)}) but no fit beat the {v.baseline} on the "
             f"held-out data by {100 * MIN_GAIN:.0f} % and the noise margin"
         )
-    return f"no discrepancy beyond the noise: residual {rmse:.2f} mV RMSE, {s2:.3g} × the noise level"
+    return (
+        f"no discrepancy beyond the noise: residual {rmse:.2f} mV RMSE against {_noise_mV(rmse, s2):.2g} mV of noise "
+        f"(s² {s2:.3g})"
+    )
+
+
+def _noise_mV(rmse: float, s2: float) -> float:
+    """The noise level [mV] that s² (mean square residual over the noise variance) was taken against."""
+    return rmse / np.sqrt(s2) if s2 > 0 else float("nan")
 
 
 def summarise(prep: Prepared, res: Residuals, sc: Scores, d: Decision, o: DiagnoseOptions) -> dict[str, Any]:
@@ -566,6 +579,7 @@ def diagnose(options: DiagnoseOptions, subscribers: Sequence[Subscriber] = ()) -
         dt=o.dt,
         fix_sign=o.fix_sign,
         preparations=o.preparations,
+        full_charge_soc=o.full_charge_soc,
     )
     say("note", text="simulating the cell on the data")
     fm = ForwardModel(prep.base, v_margin=V_MARGIN)

@@ -203,23 +203,31 @@ def plan_experiments(
     return out
 
 
-def after_preparation(e: Experiment, prep: LoggedData, cell: Cell) -> Experiment:
+def after_preparation(e: Experiment, prep: LoggedData, cell: Cell, full_soc: float = 1.0) -> Experiment:
     """``e`` (a measurement that starts at rest, logged on its own) with its preparation, logged separately as
     ``prep`` (a run whose plan step 1 charges to full and step 2 rests; then the adjustment to the profile's start SOC
     and a rest), as its unscored lead-in (:func:`with_lead_in`): from the rest after the full charge through the
     adjustment and the rest, so that the gradients the adjustment leaves in the particles are simulated instead of
     taken as a uniform cell at rest (on nca18650-true, τ⁻ ≈ 4.3 h: after a 30 min rest a 0.2-SOC adjustment at C/2
-    leaves s² 27 on a 30-min pulse profile, 541 after a 0.6-SOC one). Its start SOC is ``e``'s (from the rest
-    voltage) minus the charge passed since the full charge; the rest voltage is itself still relaxing, so a fit
+    leaves s² 27 on a 30-min pulse profile, 541 after a 0.6-SOC one).
+
+    Its start SOC is the full charge's, ``full_soc`` (a charge to V_max tapered below C/20: :func:`battlab.identify.
+    experiments.state_steps`; 1 by definition, or what a fit found the same charge to leave), as for a run log that
+    holds its preparation: the same for every model, where the SOC of ``e``'s
+    rest voltage is not (a hysteresis of 12 mV puts the rest after a discharge 1.8 % of SOC low, which took up the
+    hysteresis's offset and made its fit look worse than none). A preparation whose charge does not end full starts
+    from ``e``'s rest-voltage SOC less the charge passed since. The rest voltage is itself still relaxing, so a fit
     frees the start SOC per experiment (:class:`battlab.identify.cumulative.FitSettings` ``soc_span``)."""
     step2 = prep.columns[STEP_INDEX] == 2 if STEP_INDEX in prep.columns else np.zeros(len(prep), bool)
     first = np.flatnonzero(step2)
     where = prep.source or prep.name
-    if first.size == 0 or len(prep) < 3 or np.max(np.abs(prep.current[step2])) > 0.01 * float(cell["Q_nom"]):
+    i_rest = 0.01 * float(cell["Q_nom"])
+    if first.size == 0 or len(prep) < 3 or np.max(np.abs(prep.current[step2])) > i_rest:
         raise InputError(f"{where}: no rest after a full charge (plan step 2) to start the lead-in from")
     a, b = int(first[0]), len(prep) - 1
+    full = any(k <= a and how.startswith(FULL_CHARGE) for k, _, how in state_steps(prep, cell, i_rest))
     passed = float(np.sum(prep.current[a:b] * np.diff(prep.t[a : b + 1]))) / 3600.0
-    soc0 = float(np.clip(e.soc0 - passed / cell.capacity(), 0.0, 1.0))
+    soc0 = full_soc if full else float(np.clip(e.soc0 - passed / cell.capacity(), 0.0, 1.0))
     return with_lead_in(e, prep, a, b, soc0)
 
 

@@ -60,9 +60,9 @@ def report(s: dict[str, Any]) -> DiagnosisReport:
 @pytest.mark.parametrize(
     ("changes", "tone", "words"),
     [
-        ({}, "bad", "no cause named, but the model is wrong here: residual 4e+04 × the noise level"),
+        ({}, "bad", "no cause named, but the model is wrong here: residual s² 4e+04 over the noise variance"),
         ({"cause": "hysteresis"}, "bad", "cause: hysteresis"),
-        ({"cause": "hysteresis", "residual_over_noise": 1.1}, "bad", "cause: hysteresis (residual 1.1 ×"),
+        ({"cause": "hysteresis", "residual_over_noise": 1.1}, "bad", "cause: hysteresis (residual s² 1.1 over"),
         ({"residual_over_noise": 1.1}, "good", "no significant discrepancy among the causes tested"),
         ({"residual_over_noise": 1.1, "cannot_tell": [{"cause": "thermal"}]}, "warn", "cannot tell thermal"),
         ({"residual_over_noise": None}, "warn", "no cause named (noise level unknown)"),

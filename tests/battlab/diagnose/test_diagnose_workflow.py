@@ -270,3 +270,5 @@ def test_a_prepared_measurement_is_diagnosed_after_its_lead_in_which_is_simulate
     assert res.t[0] == 0.0 and res.soc[0] == pytest.approx(p0.experiment.soc0, abs=0.02)
     with pytest.raises(InputError, match=r"--preparation .*other\.h5=.*not one of the data files"):
         DiagnoseOptions([meas], "nca18650", preparations=[(tmp_path / "other.h5", prep_log)])
+    with pytest.raises(InputError, match="full-charge SOC 0.3: expected between 0.5 and 1"):
+        DiagnoseOptions([meas], "nca18650", full_charge_soc=0.3)

@@ -68,3 +68,36 @@ def test_each_stage_starts_each_experiment_where_the_last_stage_fitted_its_start
     assert start1 == 0.97 and abs(fitted1[e.name] - 0.97) <= o.soc_span + 1e-12
     assert fitted1[e.name] != 0.97  # the rest-voltage SOC of this made-up log is not the cell's: the fit moves it
     assert start2 == fitted1[e.name]
+
+
+def test_after_a_full_charge_the_lead_in_starts_at_soc_1_whatever_the_rest_voltage_says(
+    tmp_path: Path, stepped_log
+) -> None:
+    """A CCCV that ends at V_max tapered below C/20 leaves SOC 1 for every model; the measurement's rest voltage
+    (here that of SOC 0.7, as a hysteresis branch or a relaxing cell would shift it) does not move it."""
+    from battlab.identify import runlog
+
+    cell = Cell.load("nca18650")
+    v_max, q = float(cell["V_max"]), float(cell["Q_nom"])
+    taper = np.geomspace(q / 3, q / 25, 40)  # the CV step's current down to below C/20
+    prep = stepped_log(
+        tmp_path / "p.h5",
+        [
+            (1, taper, np.full(40, v_max - 0.001), 10.0),
+            (2, np.zeros(60), np.full(60, float(cell.ocv(0.99))), 10.0),
+            (3, np.full(144, -1.35), np.linspace(4.1, 3.86, 144), 10.0),
+            (4, np.zeros(180), np.full(180, float(cell.ocv(0.8))), 10.0),
+        ],
+    )
+    meas = stepped_log(
+        tmp_path / "m.h5",
+        [(1, np.zeros(60), np.full(60, float(cell.ocv(0.7))), 1.0), (2, np.full(50, -2.0), np.full(50, 3.5), 1.0)],
+    )
+    dyn, _ = load_all([str(meas)])
+    (e,), _ = experiments_of(FitOptions((str(meas),), "nca18650"), dyn, cell)
+    (prep_log,), _ = load_all([str(prep)])
+    assert e.soc0 == pytest.approx(0.7, abs=0.01)
+    led = runlog.after_preparation(e, prep_log, cell)
+    assert led.soc0 == 1.0 and led.lead_in > 0
+    # or where a fit found the same full charge to leave the cell
+    assert runlog.after_preparation(e, prep_log, cell, 0.993).soc0 == 0.993

@@ -1,0 +1,16 @@
+"""The campaign keeps a cause the diagnosis names only when the extended cell predicts the validation tests better."""
+
+from __future__ import annotations
+
+from battlab.campaign.diagnosis import kept
+
+
+def test_a_named_cause_is_kept_only_when_the_extended_cell_wins_the_validation_tests_by_the_margin() -> None:
+    win = {"rmse_before_mV": 10.0, "rmse_after_mV": 6.9}
+    assert kept("hysteresis", "hysteresis: ...", win) == ("hysteresis", "hysteresis: ...")
+    cause, verdict = kept("equilibrium", "equilibrium: ...", {"rmse_before_mV": 0.92, "rmse_after_mV": 19.09})
+    assert cause is None
+    assert verdict.startswith("not confirmed: the diagnosis named equilibrium") and "0.92 -> 19.09 mV" in verdict
+    assert verdict.endswith("The diagnosis: equilibrium: ...")
+    assert kept("equilibrium", "v", {"rmse_before_mV": 10.0, "rmse_after_mV": 7.1})[0] is None  # 29 %: short
+    assert kept(None, "no cause", {"rmse_before_mV": None, "rmse_after_mV": None}) == (None, "no cause")
