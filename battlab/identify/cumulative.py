@@ -30,8 +30,9 @@ class FitSettings:
     up to ``polish`` for Gauss–Newton steps after the optimiser stops at its limit (:data:`battlab.identify.fit.
     Options`); ``hold_radii``: fit the identifiable coordinates; ``refuse_uninformed``: refuse parameters the data
     cannot inform; ``workers``: threads per evaluation (None: one per core; results do not depend on it);
-    ``soc_span`` > 0: each experiment's start SOC is fitted within ± ``soc_span`` of where the last stage left it
-    (:func:`battlab.identify.fit.fit`; for measurements whose start SOC comes from a still-relaxing rest voltage)."""
+    ``soc_span`` > 0: each experiment's start SOC is fitted within ± ``soc_span`` of its own, from where the last
+    stage left it (:func:`battlab.identify.fit.fit`; for measurements whose start SOC is not known exactly: a
+    still-relaxing rest voltage, a full charge that stops a little short of SOC 1)."""
 
     max_evaluations: int = 40
     polish: int = 8
@@ -89,10 +90,9 @@ def fit_cumulative(
     exps: list[Experiment] = []
     results: list[FitResult] = []
     opts = settings.options()
-    socs: dict[str, float] = {}  # start SOCs fitted so far (soc_span > 0)
+    socs: dict[str, float] = {}  # start SOCs fitted so far (soc_span > 0): the next stage starts there
     for k, (stg, (fitted, held)) in enumerate(zip(stages, plan, strict=True), start=1):
         exps += list(stg.experiments)
-        exps = [replace(e, soc0=socs[e.name]) if e.name in socs else e for e in exps]
         rep = progress.child(f"stage {k} of {len(stages)}") if progress is not None else None
 
         def tick(n: int, cost: float, _rep: Reporter | None = rep) -> None:
@@ -111,6 +111,7 @@ def fit_cumulative(
                 start=current,
                 stage=k,
                 soc_span=settings.soc_span,
+                soc_start=socs,
                 ageing=ageing,
                 on_evaluation=tick,
             )

@@ -14,7 +14,7 @@ Group-wise and cumulative (docs/decisions.md): stage k fits the parameters of gr
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -208,6 +208,7 @@ def fit(
     start: Cell | None = None,
     stage: int = 1,
     soc_span: float = 0.0,
+    soc_start: Mapping[str, float] | None = None,
     ageing: Ageing | None = None,
     on_evaluation: Callable[[int, float], None] | None = None,
 ) -> FitResult:
@@ -216,7 +217,8 @@ def fit(
     ``start`` (default ``cell``) gives the start point; ``forward`` may be shared between fits of cells that
     differ only in dynamic values (one compiled model). ``soc_span`` > 0 adds one start-SOC nuisance parameter
     per experiment (soc0 ± ``soc_span``); the statistics of ``names`` are then marginal over them (the Jacobian
-    projected off the nuisance columns) and ``extra["soc0"]`` holds the fitted start SOCs. A fit that stops
+    projected off the nuisance columns) and ``extra["soc0"]`` holds the fitted start SOCs; ``soc_start`` (experiment
+    name → SOC) starts them there instead of at soc0, the span still centred on soc0. A fit that stops
     without meeting the stopping rule
     returns its best point with ``convergence.converged = False`` and the reason.
 
@@ -241,7 +243,21 @@ def fit(
     n_workers = min(opt.workers or cores(), len(experiments)) if fm.thread_safe else 1
     pool = ThreadPoolExecutor(n_workers) if n_workers > 1 else None
     try:
-        return _fit(cell, experiments, names, opt, fm, start, stage, soc_span, theta_full, pool, ageing, on_evaluation)
+        return _fit(
+            cell,
+            experiments,
+            names,
+            opt,
+            fm,
+            start,
+            stage,
+            soc_span,
+            theta_full,
+            pool,
+            ageing,
+            on_evaluation,
+            soc_start,
+        )
     finally:
         if pool is not None:
             pool.shutdown()
@@ -260,13 +276,14 @@ def _fit(
     pool: ThreadPoolExecutor | None,
     ageing: Ageing | None = None,
     on_evaluation: Callable[[int, float], None] | None = None,
+    soc_start: Mapping[str, float] | None = None,
 ) -> FitResult:
     prob = Problem(fm, experiments, names, theta_full, soc_span, pool, ageing, opt.temperature)
     prob.on_evaluation = on_evaluation
     prob.upper = np.r_[physical_upper(start, names), np.ones(prob.n_nuis + prob.n_age)]
     x0 = np.r_[
         np.clip(theta_full[prob.idx], 1e-6, physical_upper(start, names) - 1e-6),
-        np.full(prob.n_nuis, 0.5),
+        prob.soc_x0(soc_start or {}),
         np.clip(prob.age_x0(), 0.0, 1.0),
     ]
     t0 = time.perf_counter()

@@ -5,7 +5,7 @@ A simulation that stops early at a voltage limit holds its last voltage for the 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -167,6 +167,14 @@ class Problem:
             return np.zeros(0)
         a = self.ageing
         return np.array([a.normalise(n, a.start_value(f, n)) for f in self.files for n in a.names])
+
+    def soc_x0(self, start: Mapping[str, float]) -> np.ndarray:
+        """The start-SOC nuisances' start (normalised, 0.5: soc0): at ``start`` (name → SOC) where given, inside the
+        span."""
+        if not self.n_nuis:
+            return np.zeros(0)
+        w = 2.0 * self.soc_span
+        return np.array([np.clip(0.5 + (start.get(e.name, e.soc0) - e.soc0) / w, 1e-6, 1.0 - 1e-6) for e in self.exps])
 
     def soc_of(self, i: int, x: np.ndarray) -> float:
         e = self.exps[i]

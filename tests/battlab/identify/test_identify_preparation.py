@@ -53,21 +53,23 @@ def test_each_stage_starts_each_experiment_where_the_last_stage_fitted_its_start
     o = FitOptions((str(meas),), "nca18650", preparations=((str(meas), str(prep)),))
     (e,), _ = experiments_of(o, dyn, cell)
     e = replace(e, soc0=0.97)  # inside the span: the fit may move it both ways
-    calls: list[tuple[float, dict[str, float]]] = []
+    calls: list[tuple[float, dict, dict[str, float]]] = []
     real = F.fit
 
     def spy(c: Cell, exps: list, *args: object, **kwargs: object) -> F.FitResult:
         res = real(c, exps, *args, **kwargs)
-        calls.append((exps[0].soc0, dict(res.extra["soc0"])))
+        calls.append((exps[0].soc0, dict(kwargs.get("soc_start") or {}), dict(res.extra["soc0"])))
         return res
 
     monkeypatch.setattr(F, "fit", spy)
     stages = [F.Stage(("R_f_n",), (e,)), F.Stage(("R_f_p",), ())]
     fit_cumulative(cell, stages, FitSettings(max_evaluations=3, polish=0, soc_span=o.soc_span))
-    (start1, fitted1), (start2, fitted2) = calls
-    assert start1 == 0.97 and abs(fitted1[e.name] - 0.97) <= o.soc_span + 1e-12
-    assert fitted1[e.name] != 0.97  # the rest-voltage SOC of this made-up log is not the cell's: the fit moves it
-    assert start2 == fitted1[e.name]
+    (centre1, start1, fitted1), (centre2, start2, fitted2) = calls
+    assert centre1 == 0.97 and start1 == {} and abs(fitted1[e.name] - 0.97) <= o.soc_span + 1e-12
+    assert fitted1[e.name] != 0.97  # the made-up log's start is not the cell's: the fit moves it
+    # stage 2 starts where stage 1 left it, its span still centred on the experiment's own start SOC (no drift)
+    assert start2 == {e.name: fitted1[e.name]} and centre2 == 0.97
+    assert abs(fitted2[e.name] - 0.97) <= o.soc_span + 1e-12
 
 
 def test_after_a_full_charge_the_lead_in_starts_at_soc_1_whatever_the_rest_voltage_says(
