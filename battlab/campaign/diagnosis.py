@@ -4,10 +4,11 @@ The OED fit's cell is diagnosed (:func:`battlab.diagnose.workflow.diagnose`) on 
 (training) with the held-out validation drive cycle; when the data cannot tell causes apart and ``[diagnosis]
 decide`` is on, the experiment that separates them is designed, run on the tester and added
 (:mod:`battlab.campaign.decide`), within ``budget_hours``. A named cause is then fitted (the extend step:
-``battlab fit`` on the designed experiments, the cause's extension on, its own parameters moved from the OED fit's
-cell) and both cells are scored on every held-out validation log: the residual before and after, against the
-noise-free truth on the virtual lab. The cause is kept only when the extended cell predicts those tests (never
-fitted, other profiles than the diagnosis's held-out drive cycle) better by the diagnosis's own margin; else the
+``battlab fit`` on the designed experiments and the deciding ones, the cause's extension on, its own parameters and
+then the base moved from the OED fit's cell) and both cells are scored on every held-out validation log: the
+residual before and after, against the noise-free truth on the virtual lab. The cause is kept only when the extended
+cell predicts those tests (never fitted, other profiles than the diagnosis's held-out drive cycle) better by the
+diagnosis's own margin, or, for a cause a deciding experiment told apart, no worse (:func:`kept`); else the
 summary's ``cause`` is null, ``suggested`` says what the diagnosis named and the verdict why it was not kept.
 """
 
@@ -90,8 +91,11 @@ def _extend(
     preps: tuple[tuple[Path, Path], ...],
     out: Path,
 ) -> Path:
-    """The extend step: the named cause's extension switched on in the OED fit's cell and its own parameters
-    (:func:`battlab.diagnose.confirm.mechanism_names`) fitted on the designed experiments."""
+    """The extend step: the named cause's extension switched on in the OED fit's cell and fitted on ``train`` (the
+    designed experiments, with their preparations ``preps``, and the deciding ones) in two stages: its own
+    parameters (:func:`battlab.diagnose.confirm.mechanism_names`) alone, then with every base parameter the OED fit
+    moved (the base had taken up what the cause explains: on a truth with a 12 mV graphite hysteresis the cause's
+    parameters alone left the 1C validation discharge at 40 mV)."""
     from battlab import causes
     from battlab.diagnose.confirm import mechanism_names
     from battlab.identify.fit_options import FitOptions
@@ -99,13 +103,15 @@ def _extend(
 
     cell = Cell.load(str(cell_path))
     start = cell.with_extension(cause) if causes.cause(cause).extension is not None else cell
-    names = mechanism_names(start, cause, causes.cause(cause).qualified_names)
+    names = tuple(mechanism_names(start, cause, causes.cause(cause).qualified_names))
+    base = tuple(n for n in ctx.inputs["fit"].summary.get("parameters", {}) if n not in names)
     options = FitOptions(
         data=tuple(train),
         cell=start,
-        params=",".join(names),
+        groups=((names, frozenset()), ((*base, *names), frozenset())),  # every experiment in the first stage
         noise=ctx.path("noise", "model"),
         max_iter=camp.config.diagnosis.max_evaluations * 2,
+        polish=camp.config.fit.polish,
         preparations=preps,
         output=out,
         drop_uninformed=True,
@@ -114,19 +120,28 @@ def _extend(
     return out
 
 
-def kept(cause: str | None, verdict: str, gain: dict[str, Any]) -> tuple[str | None, str]:
+#: a cause named after a deciding experiment is kept when the extended cell predicts the validation tests no worse
+#: than this (relative mean RMSE)
+NO_WORSE = 0.1
+
+
+def kept(cause: str | None, verdict: str, gain: dict[str, Any], decided: bool = False) -> tuple[str | None, str]:
     """The named cause and the verdict, kept when the cell extended with it predicts the validation tests (never
     fitted, other profiles than the diagnosis's held-out drive cycle) better by the diagnosis's own margin
     (:data:`battlab.diagnose.confirm.MIN_GAIN` on the mean RMSE ``gain``); else no cause, and why. On a truth without
     a hidden effect an equilibrium shift won the drive cycle by 32 % (0.44 -> 0.30 mV) and took the validation tests
-    from 0.92 to 19.09 mV once extended."""
+    from 0.92 to 19.09 mV once extended. A cause named by a deciding experiment (``decided``: its evidence is that
+    experiment's held-out part, e.g. at another ambient, where the validation tests at the campaign's ambient cannot
+    show what told it from its look-alike) is kept when the validation tests get no worse (:data:`NO_WORSE`)."""
     before, after = gain.get("rmse_before_mV"), gain.get("rmse_after_mV")
-    if cause is None or before is None or after is None or after <= (1.0 - MIN_GAIN) * before:
+    if cause is None or before is None or after is None:
         return cause, verdict
+    if after <= (1.0 - MIN_GAIN) * before or (decided and after <= (1.0 + NO_WORSE) * before):
+        return cause, verdict
+    need = f"no more than {100 * NO_WORSE:.0f} % worse" if decided else f"not {100 * MIN_GAIN:.0f} % better"
     return None, (
         f"not confirmed: the diagnosis named {cause}, but the cell extended with it predicts the validation tests "
-        f"{before:.2f} -> {after:.2f} mV (not {100 * MIN_GAIN:.0f} % better); the cell is left as fitted. "
-        f"The diagnosis: {verdict}"
+        f"{before:.2f} -> {after:.2f} mV ({need}); the cell is left as fitted. The diagnosis: {verdict}"
     )
 
 
@@ -158,8 +173,9 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
         gain: dict[str, Any] = {"rmse_before_mV": None, "rmse_after_mV": None, "held_out": list(logs)}
         table: dict[str, Any] = {}
         cause = s["cause"]
-        if cause is not None:
-            extended = _extend(camp, ctx, cause, cell_path, train, preps, out / "extended.bpx.json")
+        if cause is not None:  # the deciding experiments' logs start at their own full charge
+            decided = [Path(r["experiment"]["log"]) for r in rounds]
+            extended = _extend(camp, ctx, cause, cell_path, [*train, *decided], preps, out / "extended.bpx.json")
             files["cell"] = "diagnosis/extended.bpx.json"
             truth = Cell.load(camp.tester.truth) if camp.tester.virtual else None
             cells = {"before": Cell.load(str(cell_path)), "after": Cell.load(str(extended))}
@@ -167,7 +183,7 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
             mean = {k: sum(v.values()) / len(v) for k, v in table.items()}
             gain.update(rmse_before_mV=mean["before"], rmse_after_mV=mean["after"])
         suggested = cause
-        cause, verdict = kept(cause, s["verdict"], gain)
+        cause, verdict = kept(cause, s["verdict"], gain, decided=bool(rounds))
         summary = {
             "method": "battlab diagnose on the designed experiments, the validation drive cycle held out"
             + (", deciding experiments on the tester" if camp.config.diagnosis.decide else "")
@@ -194,4 +210,4 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
     return run
 
 
-__all__ = ["diagnosis", "kept"]
+__all__ = ["NO_WORSE", "diagnosis", "kept"]

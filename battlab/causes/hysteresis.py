@@ -11,7 +11,7 @@ from typing import Any, ClassVar
 import casadi as ca
 
 from battlab.causes.cause import Cause, Evidence, Reason
-from battlab.causes.evidence import rests_after_both_directions
+from battlab.causes.evidence import rests_after_both_directions, reverses_direction
 from battlab.causes.extension import Evaluation, Extension, Mesh
 from battlab.constants import F
 from battlab.specs import extension_parameter
@@ -57,16 +57,22 @@ class Hysteresis(Extension):
         return ca.vertcat(*out)
 
 
+def _sweeps(experiments: Sequence[Any], i_rest: float) -> bool:
+    """Its state moves only with the direction of the current: it shows in the relaxation after a charge and after
+    a discharge, or while a reversal of the current sweeps it from one branch towards the other."""
+    return rests_after_both_directions(experiments, i_rest) or reverses_direction(experiments, i_rest)
+
+
 def _no_rests(experiments: Sequence[Any], i_rest: float) -> Reason:
-    """Its state moves only with the direction of the current and shows in the relaxation after it."""
-    return None if rests_after_both_directions(experiments, i_rest) else "no rest after a charge and after a discharge"
+    return None if _sweeps(experiments, i_rest) else "no rest after a charge and after a discharge, no reversal"
 
 
 def _uninformed(name: str, experiments: Sequence[Any], i_rest: float) -> Reason:
     return (
         None
-        if rests_after_both_directions(experiments, i_rest)
-        else ("no experiment rests after a charge and after a discharge")
+        if _sweeps(experiments, i_rest)
+        else "no experiment rests after a charge and after a discharge or reverses the current with charge enough to "
+        "move the state"
     )
 
 

@@ -14,3 +14,13 @@ def test_a_named_cause_is_kept_only_when_the_extended_cell_wins_the_validation_t
     assert verdict.endswith("The diagnosis: equilibrium: ...")
     assert kept("equilibrium", "v", {"rmse_before_mV": 10.0, "rmse_after_mV": 7.1})[0] is None  # 29 %: short
     assert kept(None, "no cause", {"rmse_before_mV": None, "rmse_after_mV": None}) == (None, "no cause")
+
+
+def test_a_cause_a_deciding_experiment_told_apart_is_kept_when_the_validation_tests_get_no_worse() -> None:
+    """Its evidence is the deciding experiment (another ambient); the validation tests at the campaign's ambient
+    only guard against a cause that makes the cell worse."""
+    same = {"rmse_before_mV": 8.6, "rmse_after_mV": 8.9}
+    assert kept("contact_resistance", "v", same)[0] is None
+    assert kept("contact_resistance", "v", same, decided=True) == ("contact_resistance", "v")
+    cause, verdict = kept("contact_resistance", "v", {"rmse_before_mV": 8.6, "rmse_after_mV": 9.8}, decided=True)
+    assert cause is None and "8.60 -> 9.80 mV (no more than 10 % worse)" in verdict

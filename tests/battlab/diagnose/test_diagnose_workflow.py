@@ -187,7 +187,7 @@ def test_causes_the_data_cannot_show_are_listed_with_the_experiment_that_would()
 
     t = np.arange(0.0, 600.0)
     one_way = Profile(t, np.where(t < 300, -2.7, 0.0))
-    no_rests = Profile(t, np.where(t < 300, -2.7, 1.0))
+    no_rests = Profile(t, np.where(t < 300, -2.7, np.where(t < 320, 1.0, 0.0)))  # a 20 s charge: too little
     both = Profile(t, np.select([t < 200, t < 300, t < 500], [-2.7, 0.0, 1.0], 0.0))  # each direction, then a rest
     e = [Experiment("a", one_way, np.full(t.size, 3.6), 0.8, 1e-8, 298.15, None)]
     e_no_rests = [Experiment("a", no_rests, np.full(t.size, 3.6), 0.8, 1e-8, 298.15, None)]
