@@ -63,7 +63,8 @@ def _sweeps(experiments: Sequence[Any], i_rest: float) -> bool:
     return rests_after_both_directions(experiments, i_rest) or reverses_direction(experiments, i_rest)
 
 
-def _no_rests(experiments: Sequence[Any], i_rest: float) -> Reason:
+def _untestable(experiments: Sequence[Any], i_rest: float) -> Reason:
+    """Why a diagnosis on these experiments cannot test it (None: it can)."""
     return None if _sweeps(experiments, i_rest) else "no rest after a charge and after a discharge, no reversal"
 
 
@@ -115,7 +116,7 @@ CAUSE = Cause(
     ),
     slots=frozenset({"ocp_hysteresis_n", "ocp_hysteresis_p"}),
     uninformed=_uninformed,
-    untestable=_no_rests,
+    untestable=_untestable,
     example={"M_n": 0.01, "gamma_n": 30.0, "M_p": 0.005, "gamma_p": 80.0},
     validated_by="PyBaMM's 'one-state hysteresis' (benchmarks/bench_extensions.py)",
 )
