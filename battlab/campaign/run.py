@@ -101,11 +101,13 @@ def summarise(records: Sequence[StageRecord], config: CampaignConfig, tester: Te
     }
     if "fit" in by and "recovery" in by["fit"].output.summary:
         out["recovery"] = [
-            {k: r[k] for k in ("parameter", "truth", "estimate", "ci95", "covered", "truth_on_bound")}
+            {k: r.get(k) for k in ("parameter", "truth", "estimate", "ci95", "covered", "truth_on_bound", "trusted")}
+            | {"untrusted_because": r.get("untrusted_because", [])}
             for r in by["fit"].output.summary["recovery"]
         ]
         out["recovery_invariants"] = [
-            {k: r[k] for k in ("parameter", "truth", "estimate", "ci95", "covered", "trusted")}
+            {k: r.get(k) for k in ("parameter", "truth", "estimate", "ci95", "covered", "trusted")}
+            | {"untrusted_because": r.get("untrusted_because", [])}
             for r in by["fit"].output.summary.get("recovery_invariants", [])
         ]
     if "validation" in by:

@@ -160,6 +160,9 @@ def test_a_reduced_campaign_end_to_end(
     assert s["lab_hours"] > 40  # at least the C/20 cycle
     rec = {x["parameter"]: x for x in s["recovery"]}
     assert len(rec) == 18 and rec["D_s_n"]["truth"] == pytest.approx(2.634e-14, rel=1e-3)
+    # every interval says whether it can be trusted, and why not when it cannot
+    rows = [*s["recovery"], *s["recovery_invariants"]]
+    assert rows and all(isinstance(x["trusted"], bool) and (x["trusted"] or x["untrusted_because"]) for x in rows)
     table = s["validation_rmse_mV"]
     assert set(table) == set(OED_BOUND_MV)
     assert all(set(row) == {"nominal", "conventional", "OED"} for row in table.values())
