@@ -17,6 +17,7 @@ from typing import Any
 from battlab import parameters
 from battlab.identify.fit import FitResult
 from battlab.identify.statistics import Estimate, Statistics
+from battlab.identify.symmetry import INVARIANTS, bounds_range
 
 #: s² above this: the weighted residual is model error, not the noise the weights assume (at N ≈ 10⁴ samples the
 #: sampling spread of s² is about ±0.02, so 2 is far outside it)
@@ -76,17 +77,31 @@ def parameter_entry(e: Estimate, caveats: Sequence[str]) -> dict[str, Any]:
     }
 
 
+def invariant_caveats(name: str, ci95: tuple[float, float], estimates: Sequence[Estimate]) -> list[str]:
+    """Why an invariant's interval cannot be trusted, beyond the fit's own caveats: a factor of it sits at a bound
+    (the orbit is cut there; the delta-method interval then moves only with the free factors, e.g. κ = k/R_s with k
+    held at its bound varies as 1/R_s alone), or the interval runs to the range the bounds allow."""
+    powers = next(inv[name] for inv in INVARIANTS.values() if name in inv)
+    by = {e.name: e for e in estimates}
+    out = [f"{n} at its {by[n].at_bound} bound: the interval is conditional on it" for n in powers if by[n].at_bound]
+    lo, hi = bounds_range(powers)
+    if ci95[0] <= lo * (1 + AT_EDGE) or ci95[1] >= hi * (1 - AT_EDGE):
+        out.append("its interval runs to the range the bounds allow: the data do not inform it there")
+    return out
+
+
 def invariant_entries(st: Statistics, caveats: Sequence[str]) -> dict[str, dict[str, Any]]:
-    return {
-        i.name: {
+    out = {}
+    for i in st.invariants:
+        why = [*caveats, *invariant_caveats(i.name, i.ci95, st.estimates)]
+        out[i.name] = {
             "value": i.value,
             "ci95": list(i.ci95),
             "definition": i.definition,
-            "trusted": not caveats,
-            "untrusted_because": list(caveats),
+            "trusted": not why,
+            "untrusted_because": why,
         }
-        for i in st.invariants
-    }
+    return out
 
 
 def dynamic_summary(results: Sequence[FitResult], total: int, base: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -142,6 +157,7 @@ __all__ = [
     "equilibrium_only",
     "estimate_caveats",
     "fit_caveats",
+    "invariant_caveats",
     "invariant_entries",
     "parameter_entry",
     "stages_text",

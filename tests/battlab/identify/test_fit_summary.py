@@ -1,0 +1,33 @@
+"""How far the summary trusts an invariant's interval: a factor held at a bound or an interval that runs to the
+bounds' range makes it untrusted, with why; an interior, informed invariant of a converged fit stays trusted."""
+
+from __future__ import annotations
+
+from battlab.identify.fit_summary import invariant_caveats
+from battlab.identify.statistics import Estimate
+
+
+def estimate(name: str, value: float, at_bound: str | None = None) -> Estimate:
+    return Estimate(name, value, 0.5, 0.01, None, (value * 0.9, value * 1.1), None, at_bound, set_identified=True)
+
+
+ORBIT_N = [estimate("R_s_n", 2e-5), estimate("D_s_n", 2.6e-14), estimate("R_f_n", 1e-4)]
+
+
+def test_an_invariant_whose_factor_sits_at_a_bound_is_conditional_on_it() -> None:
+    k_at_bound = [*ORBIT_N, estimate("k_n", 7.5e-5, at_bound="lower")]
+    why = invariant_caveats("kappa_n", (3.5, 4.0), k_at_bound)
+    assert why == ["k_n at its lower bound: the interval is conditional on it"]
+    # tau_n and rho_n do not contain k_n: the bound on k_n says nothing about them
+    assert invariant_caveats("tau_n", (1.5e4, 1.6e4), k_at_bound) == []
+    assert invariant_caveats("rho_n", (1.9e-9, 2.1e-9), k_at_bound) == []
+
+
+def test_an_invariant_interval_that_runs_to_the_bounds_range_is_not_informed_there() -> None:
+    free = [*ORBIT_N, estimate("k_n", 1e-4)]
+    # kappa_n = k_n / R_s_n ranges over [7.5e-5 / 1e-4, 7.5e-3 / 1e-6] = [0.75, 7500] within the bounds
+    assert invariant_caveats("kappa_n", (2.0, 7500.0), free) == [
+        "its interval runs to the range the bounds allow: the data do not inform it there"
+    ]
+    assert invariant_caveats("kappa_n", (0.75, 30.0), free)
+    assert invariant_caveats("kappa_n", (4.0, 6.0), free) == []
