@@ -337,6 +337,10 @@ def fit(
     print(f"  fit: {secs:.0f} s (target <= {TARGET_FIT_S:.0f} s for the full design plan: {ok})")
     print(f"  noise model: {rep.summary['noise']['source']}")
     st = rep.last.statistics
+    rho, pairs = rep.last.autocorrelation
+    caveats = rep.summary.get("trust", {}).get("caveats", [])
+    print(f"  residual lag-1 autocorrelation {rho:.3f} (white noise: 0 ± {1 / math.sqrt(max(pairs, 1)):.3f})")
+    print(f"  the fit's caveats: {'; '.join(caveats) if caveats else 'none'}")
     root = math.sqrt(st.s2)
     trusted = {**rep.summary["parameters"], **rep.summary.get("invariants", {})}
     covered: dict[str, tuple[bool, bool | None, bool]] = {}

@@ -79,13 +79,17 @@ def _fit_trust(f: Mapping[str, Any]) -> str:
 
 def results_box(summaries: Mapping[str, Any], health: list[list[Any]]) -> Section:
     """The answer first: validation RMSE per cell, each fit's convergence, s² and trusted intervals, run health.
-    Green only when every fit converged with s² ≤ 2 and every run completed."""
+    Green only when every fit converged to the noise (s² ≤ 2, a residual not correlated from sample to sample: no
+    caveat on its intervals) and every run completed."""
     from battlab.identify.fit_summary import S2_MODEL_ERROR
 
     blocks: list[Block] = []
     fits = {k: summaries[k] for k in ("fit", "conventional") if k in summaries}
     aborted = [r for r in health if r[2] != "completed"]
-    ok = bool(fits) and all(f.get("converged") and f.get("s2", np.inf) <= S2_MODEL_ERROR for f in fits.values())
+    ok = bool(fits) and all(
+        f.get("converged") and f.get("s2", np.inf) <= S2_MODEL_ERROR and not f.get("trust", {}).get("caveats")
+        for f in fits.values()
+    )
     ok = ok and not aborted
     if fits:
         rows = [
@@ -113,10 +117,11 @@ def results_box(summaries: Mapping[str, Any], health: list[list[Any]]) -> Sectio
         blocks.append(Paragraph(f"{len(aborted)} of {len(health)} runs did not complete: see Run-log health", "bad"))
     if fits:
         text = (
-            "every fit converged to the noise (s² ≤ 2), every run completed: the intervals can be trusted as marked"
+            "every fit converged to the noise (s² ≤ 2, a white residual), every run completed: the intervals can be "
+            "trusted as marked"
             if ok
-            else "read with care: a fit did not converge, its residual is model error (s² > 2), or a run did not "
-            "complete; the intervals marked untrusted say why"
+            else "read with care: a fit did not converge, its residual is model error (s² > 2, or correlated from "
+            "sample to sample), or a run did not complete; the intervals marked untrusted say why"
         )
         blocks.insert(0, Paragraph(text, "good" if ok else "bad"))
     return Section("Results", blocks or [Paragraph("no fit in this campaign")])
@@ -185,12 +190,14 @@ def equilibrium(view: View) -> Section:
     blocks: list[Block] = [KeyValues({k: e.get(k) for k in (*keys, "converged") if k in e})]
     if isinstance(e.get("truth"), dict) and all(isinstance(v, dict) for v in e["truth"].values()):
         rows = [
-            [k, v["estimate"], v["ci95"], v["truth"], f"{100 * v['bias']:+.3f} %", v["covered"]]
+            [k, v["estimate"], v["ci95"], v["truth"], f"{100 * v['bias']:+.3f} %", v["covered"], v.get("trusted")]
             for k, v in e["truth"].items()
         ]
-        blocks.append(Table(["parameter", "estimate", "95 % interval", "truth", "bias", "covered"], rows))
+        blocks.append(Table(["parameter", "estimate", "95 % interval", "truth", "bias", "covered", "trusted"], rows))
     elif "truth" in e:
         blocks.append(KeyValues({f"truth {k}": v for k, v in e["truth"].items()}))
+    if e.get("untrusted_because"):
+        blocks.append(Paragraph("intervals not to be trusted: " + "; ".join(e["untrusted_because"]), "bad"))
     fp = view.file("equilibrium", "figure")
     if fp:
         blocks.append(Figure(fp, "OCV test (one C/20 cycle) and the fitted OCV"))

@@ -110,6 +110,19 @@ def summarise(records: Sequence[StageRecord], config: CampaignConfig, tester: Te
             | {"untrusted_because": r.get("untrusted_because", [])}
             for r in by["fit"].output.summary.get("recovery_invariants", [])
         ]
+    if "equilibrium" in by and "ci95" in by["equilibrium"].output.summary:
+        e = by["equilibrium"].output.summary
+        truth = e.get("truth") if isinstance(e.get("truth"), dict) else {}
+        out["equilibrium"] = {
+            "converged": e.get("converged"),
+            "trusted": e.get("trusted"),
+            "untrusted_because": e.get("untrusted_because", []),
+            "estimates": {
+                k: {"estimate": e.get(k), "ci95": ci}
+                | {x: truth[k][x] for x in ("truth", "bias", "covered") if isinstance(truth.get(k), dict)}
+                for k, ci in e["ci95"].items()
+            },
+        }
     if "validation" in by:
         v = by["validation"].output.summary
         tests = list(next(iter(v["rmse_mV"].values()))) if v["rmse_mV"] else []

@@ -28,7 +28,7 @@ from battlab.identify.ageing import Ageing
 from battlab.identify.experiments import Experiment
 from battlab.identify.forward import ForwardModel
 from battlab.identify.gauss_newton import GaussNewtonStep, bounded_gauss_newton
-from battlab.identify.problem import Problem, abs_errors_mV, rmse_mV
+from battlab.identify.problem import Problem, abs_errors_mV, residual_autocorrelation, rmse_mV
 from battlab.threads import cores
 from protocols.errors import InputError
 
@@ -98,6 +98,9 @@ class FitResult:
     extra: dict[str, object] = field(default_factory=dict)
     #: per experiment the noise level its weights assume [mV] (√ of the mean variance): the RMSE's yardstick
     noise_mV: dict[str, float] = field(default_factory=dict)
+    #: lag-1 autocorrelation of the weighted residual at the solution and its number of sample pairs
+    #: (:func:`battlab.identify.problem.residual_autocorrelation`): ≈ 0 when the residual is the noise
+    autocorrelation: tuple[float, int] = (float("nan"), 0)
 
     def report(self) -> dict[str, object]:
         """A JSON-able fit report (parameters, intervals, convergence, RMSEs)."""
@@ -118,6 +121,7 @@ class FitResult:
             "statistics_valid": st.valid,
             "statistics_note": st.reason,
             "s2": st.s2,
+            "residual_autocorrelation": self.autocorrelation[0] if np.isfinite(self.autocorrelation[0]) else None,
             "condition": st.condition,
             "not_identifiable": list(st.unidentifiable),
             "null_space": [dict(d) for d in st.null_space],
@@ -379,6 +383,7 @@ def _fit(
         stage,
         extra,
         {e.name: float(1e3 * np.sqrt(np.mean(e.variance))) for e in experiments},
+        residual_autocorrelation(experiments, preds),
     )
 
 

@@ -11,6 +11,7 @@ interval scaled by s², ``ci95_scaled``, is the honest one, and is given).
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -22,6 +23,13 @@ from battlab.identify.symmetry import INVARIANTS, bounds_range
 #: s² above this: the weighted residual is model error, not the noise the weights assume (at N ≈ 10⁴ samples the
 #: sampling spread of s² is about ±0.02, so 2 is far outside it)
 S2_MODEL_ERROR = 2.0
+#: lag-1 autocorrelation of the weighted residual above this (and above :data:`AUTOCORRELATION_Z` standard errors of
+#: white noise, 1/√n): the residual holds a part the model cannot follow, about ρ/(1−ρ) of the noise variance, and
+#: the fit has absorbed some of it into its parameters. Eq. 46 assumes white noise; the intervals are then too narrow
+#: and may be biased, and no s² scaling repairs a bias. It complements s², which compares the residual with the noise
+#: model (itself an estimate): the correlation compares the residual with itself.
+AUTOCORRELATION_MODEL_ERROR = 0.05
+AUTOCORRELATION_Z = 4.0
 #: θ̄ this close to 0 or 1 counts as reaching the bound
 AT_EDGE = 1e-3
 
@@ -34,13 +42,21 @@ def stages_text(done: int, total: int) -> str:
     return f"stage 1 of {total}" if done == 1 else f"stages 1–{done} of {total}"
 
 
-def fit_caveats(converged: bool, st: Statistics) -> list[str]:
-    """Why no interval of this fit can be trusted as it stands (empty: the fit's own conditions hold)."""
+def fit_caveats(converged: bool, st: Statistics, autocorrelation: tuple[float, int] = (math.nan, 0)) -> list[str]:
+    """Why no interval of this fit can be trusted as it stands (empty: the fit's own conditions hold).
+    ``autocorrelation``: the residual's lag-1 autocorrelation and its number of pairs (:class:`FitResult`)."""
     out = []
     if not converged:
         out.append("the fit did not converge")
     if st.s2 == st.s2 and st.s2 > S2_MODEL_ERROR:
         out.append(f"s² = {st.s2:.3g} > {S2_MODEL_ERROR:g}: the residual is model error, not noise (use ci95_scaled)")
+    rho, n = autocorrelation
+    if n > 0 and rho > AUTOCORRELATION_MODEL_ERROR and rho * math.sqrt(n) > AUTOCORRELATION_Z:
+        out.append(
+            f"the residual is correlated from sample to sample (lag-1 autocorrelation {rho:.2f}; white noise: "
+            f"0 ± {1 / math.sqrt(n):.2g}): part of it is model error the fit absorbed, so the intervals are too "
+            "narrow and may be biased"
+        )
     return out
 
 
@@ -112,7 +128,7 @@ def dynamic_summary(results: Sequence[FitResult], total: int, base: dict[str, An
     st = last.statistics
     partial = len(results) < total
     converged = bool(out.get("converged", True) and all(r.convergence.converged for r in results) and not partial)
-    caveats = fit_caveats(all(r.convergence.converged for r in results), st)
+    caveats = fit_caveats(all(r.convergence.converged for r in results), st, last.autocorrelation)
     if not st.valid:
         caveats.append(f"invalid statistics: {st.reason}")
     for e in st.estimates:
@@ -152,6 +168,8 @@ def equilibrium_only(base: dict[str, Any], total: int) -> dict[str, Any]:
 
 
 __all__ = [
+    "AUTOCORRELATION_MODEL_ERROR",
+    "AUTOCORRELATION_Z",
     "S2_MODEL_ERROR",
     "dynamic_summary",
     "equilibrium_only",

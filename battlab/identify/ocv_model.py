@@ -143,8 +143,15 @@ class ModelEquilibrium:
     seconds: float
     model_voltage: np.ndarray = field(repr=False)
 
+    @property
+    def untrusted_because(self) -> list[str]:
+        """Why its intervals cannot be trusted (empty: they can): a fit that stopped before its fixed point has
+        intervals around a point that is not the estimate."""
+        return [] if self.converged else [f"the equilibrium fit did not converge ({self.message})"]
+
     def report(self) -> dict[str, object]:
-        """JSON-able summary: the estimates with intervals, the nuisances, fit quality and convergence."""
+        """JSON-able summary: the estimates with intervals (and whether they can be trusted), the nuisances, fit
+        quality and convergence."""
         c = self.cell
         n0, n1, p0, p1 = c.stoichiometry_window()
         return {
@@ -164,6 +171,8 @@ class ModelEquilibrium:
             ],
             "converged": self.converged,
             "message": self.message,
+            "trusted": not self.untrusted_because,
+            "untrusted_because": self.untrusted_because,
             "seconds": self.seconds,
             "pseudo_ocv": {
                 "eps_s_n": self.start.eps_s_n,
@@ -386,8 +395,8 @@ def hac_covariance(J: np.ndarray, r: np.ndarray, dof: int, lags: int | None = No
 
 
 def against_truth(eq: ModelEquilibrium, truth: Cell) -> dict[str, dict[str, object]]:
-    """Per equilibrium estimate (virtual lab): the truth, the relative bias and whether the 95 % interval covers
-    the truth."""
+    """Per equilibrium estimate (virtual lab): the truth, the relative bias, whether the 95 % interval covers the
+    truth and whether it can be trusted (:attr:`ModelEquilibrium.untrusted_because`)."""
     true = {
         "eps_s_n": float(truth["eps_s_n"]) * float(truth["A"]) / float(eq.cell["A"]),  # the same moles at this area
         "eps_s_p": float(truth["eps_s_p"]) * float(truth["A"]) / float(eq.cell["A"]),
@@ -400,5 +409,12 @@ def against_truth(eq: ModelEquilibrium, truth: Cell) -> dict[str, dict[str, obje
     for name, t in true.items():
         lo, hi = eq.ci95[name]
         v = eq.estimates[name]
-        out[name] = {"truth": t, "estimate": v, "bias": v / t - 1.0, "ci95": [lo, hi], "covered": bool(lo <= t <= hi)}
+        out[name] = {
+            "truth": t,
+            "estimate": v,
+            "bias": v / t - 1.0,
+            "ci95": [lo, hi],
+            "covered": bool(lo <= t <= hi),
+            "trusted": not eq.untrusted_because,
+        }
     return out

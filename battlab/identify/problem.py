@@ -241,5 +241,21 @@ def rmse_mV(exps: Sequence[Experiment], preds: list[np.ndarray]) -> dict[str, fl
     }
 
 
+def residual_autocorrelation(exps: Sequence[Experiment], preds: list[np.ndarray]) -> tuple[float, int]:
+    """Lag-1 autocorrelation of the weighted residual, pooled over the experiments (consecutive scored samples of
+    each), and the number of pairs. White noise gives 0 ± 1/√n; a residual the model cannot follow (model error the
+    fit absorbed into its parameters) is correlated from sample to sample, whatever s² and the noise model say."""
+    num = den = 0.0
+    n = 0
+    for e, p in zip(exps, preds, strict=True):
+        w = ((p - e.voltage) / np.sqrt(e.variance))[e.mask]
+        if w.size < 2:
+            continue
+        num += float(w[:-1] @ w[1:])
+        den += float(w @ w)
+        n += w.size - 1
+    return (num / den if den > 0 else float("nan")), n
+
+
 def abs_errors_mV(exps: Sequence[Experiment], preds: list[np.ndarray]) -> np.ndarray:
     return np.concatenate([1e3 * np.abs(p - e.voltage)[e.mask] for e, p in zip(exps, preds, strict=True)])

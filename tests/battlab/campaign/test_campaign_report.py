@@ -53,3 +53,24 @@ def test_runs_that_did_not_complete_are_named(tmp_path: Path) -> None:
     assert "conventional1.h5: aborted" in head and "validation0.h5: aborted" in head
     box = render("t", [results_box({"fit": {"converged": True, "s2": 1.0, "parameters": {}}}, rows)])
     assert "2 of 4 runs did not complete" in box and 'class="good"' not in box
+
+
+def test_the_results_box_is_green_only_for_fits_whose_intervals_carry_no_caveat(tmp_path: Path) -> None:
+    rows = _health(tmp_path, {"ocv": [{}]})
+    clean = {"converged": True, "s2": 1.1, "parameters": {}, "trust": {"caveats": [], "trusted": ["R_s_n"]}}
+    assert 'class="good"' in render("t", [results_box({"fit": clean}, rows)])
+    why = "the residual is correlated from sample to sample (lag-1 autocorrelation 0.12; white noise: 0 ± 0.01)"
+    correlated = clean | {"trust": {"caveats": [why], "trusted": [], "untrusted": ["R_s_n"]}}
+    box = render("t", [results_box({"fit": correlated}, rows)])
+    assert 'class="good"' not in box and "read with care" in box and "lag-1 autocorrelation 0.12" in box
+
+
+def test_the_equilibrium_section_says_when_its_intervals_cannot_be_trusted(tmp_path: Path) -> None:
+    from battlab.campaign.report import View, equilibrium
+
+    row = {"truth": 0.5439, "estimate": 0.542, "bias": -0.0035, "ci95": [0.541, 0.543], "covered": False}
+    summary = {"converged": False, "untrusted_because": ["the equilibrium fit did not converge (4 simulations)"]}
+    summaries = {"equilibrium": summary | {"truth": {"eps_s_n": row | {"trusted": False}}}}
+    view = View(tmp_path, summaries, {}, None, tmp_path)
+    html = render("t", [equilibrium(view)])
+    assert "<th>trusted</th>" in html and "intervals not to be trusted: the equilibrium fit did not converge" in html

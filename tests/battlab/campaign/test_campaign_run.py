@@ -163,6 +163,11 @@ def test_a_reduced_campaign_end_to_end(
     # every interval says whether it can be trusted, and why not when it cannot
     rows = [*s["recovery"], *s["recovery_invariants"]]
     assert rows and all(isinstance(x["trusted"], bool) and (x["trusted"] or x["untrusted_because"]) for x in rows)
+    eq = s["equilibrium"]  # the equilibrium fit's intervals too, with its bias against the truth
+    assert isinstance(eq["trusted"], bool) and (eq["trusted"] or eq["untrusted_because"])
+    assert eq["trusted"] == bool(eq["converged"])
+    assert {"eps_s_n", "eps_s_p", "n_Li", "capacity_Ah"} <= set(eq["estimates"])
+    assert all(set(x) == {"estimate", "ci95", "truth", "bias", "covered"} for x in eq["estimates"].values())
     table = s["validation_rmse_mV"]
     assert set(table) == set(OED_BOUND_MV)
     assert all(set(row) == {"nominal", "conventional", "OED"} for row in table.values())

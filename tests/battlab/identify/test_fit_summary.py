@@ -3,8 +3,12 @@ bounds' range makes it untrusted, with why; an interior, informed invariant of a
 
 from __future__ import annotations
 
-from battlab.identify.fit_summary import invariant_caveats
-from battlab.identify.statistics import Estimate
+import math
+
+import numpy as np
+
+from battlab.identify.fit_summary import fit_caveats, invariant_caveats
+from battlab.identify.statistics import Estimate, Statistics
 
 
 def estimate(name: str, value: float, at_bound: str | None = None) -> Estimate:
@@ -31,3 +35,13 @@ def test_an_invariant_interval_that_runs_to_the_bounds_range_is_not_informed_the
     ]
     assert invariant_caveats("kappa_n", (0.75, 30.0), free)
     assert invariant_caveats("kappa_n", (4.0, 6.0), free) == []
+
+
+def test_a_correlated_residual_is_model_error_whatever_s2_says() -> None:
+    st = Statistics(("R_s_n",), np.array([0.5]), 10_001, 10_000, 1.96, None, None, None, 1.3, 10.0)
+    assert fit_caveats(True, st) == []  # s² 1.3: no caveat from s² alone
+    (why,) = fit_caveats(True, st, (0.12, 10_000))
+    assert "lag-1 autocorrelation 0.12" in why and "0 ± 0.01" in why
+    assert fit_caveats(True, st, (0.02, 10_000)) == []  # small: within what eq. 46 tolerates
+    assert fit_caveats(True, st, (0.2, 100)) == []  # 2 standard errors of white noise: not shown to be correlated
+    assert fit_caveats(True, st, (math.nan, 0)) == []

@@ -10,7 +10,7 @@ from battlab import parameters as P
 from battlab.identify import fit as F
 from battlab.identify.cumulative import FitSettings, fit_cumulative
 from battlab.identify.experiments import Experiment
-from battlab.identify.forward import ForwardModel, Output
+from battlab.identify.forward import DT_FIRST, ForwardModel, Output
 from battlab.identify.gauss_newton import bounded_gauss_newton
 from battlab.identify.virtual import noise_free, synthesize
 from battlab.model.solver import Settings
@@ -36,7 +36,7 @@ def test_forward_model_matches_simulate(setup) -> None:
     cell, truth, fm, profs, _ = setup
     out = fm.run(fm.theta_of(truth), profs[0], profs[0].soc0, sensitivities=["R_s_n", "D_s_p"])
     # the fit's steps end at every sample (a cost smooth in θ̄): simulate with the same steps
-    fixed = Settings(adaptive=False)
+    fixed = Settings(adaptive=False, dt_first=DT_FIRST)
     res = battlab.simulate(truth, profs[0], sensitivities=["R_s_n", "D_s_p"], settings=fixed)
     np.testing.assert_allclose(out.voltage, res.voltage, atol=1e-12)
     np.testing.assert_allclose(out.sensitivities, res.sensitivities, atol=1e-9)
@@ -56,8 +56,30 @@ def test_fit_recovers_truth_and_reports(setup) -> None:
     for e in exps:  # validation RMSE against the truth within 2x the noise level
         assert res.rmse_mV[e.name] <= 2e3 * np.sqrt(e.variance[0]) + 1e-9
     assert np.median(res.errors_after_mV) < np.median(res.errors_before_mV)
+    # the residual of a model that explains its data is the noise: white, its lag-1 autocorrelation 0 ± 1/√n
+    rho, n = res.autocorrelation
+    assert n > 1000 and abs(rho) < 4 / np.sqrt(n)
     rep = res.report()
-    assert rep["converged"] and set(rep["estimates"]) == set(NAMES)
+    assert rep["converged"] and set(rep["estimates"]) == set(NAMES) and rep["residual_autocorrelation"] == rho
+
+
+def test_a_residual_the_model_cannot_follow_is_seen_as_correlated(setup) -> None:
+    """A slow 6 mV wave the cell does not make (beside 7.2 mV of white noise: s² stays below 2) leaves a correlated
+    residual after the fit: the summary then trusts no interval, with why."""
+    from dataclasses import replace
+
+    from battlab.identify.fit_summary import dynamic_summary
+
+    cell, truth, fm, profs, clean = setup
+    exps = [synthesize(fm, truth, p, p.soc0, seed=7 + k, clean=clean[p.id]) for k, p in enumerate(profs)]
+    exps = [replace(e, voltage=e.voltage + 6e-3 * np.sin(2 * np.pi * e.profile.t / 120.0)) for e in exps]
+    res = F.fit(cell, exps, NAMES, forward=fm)
+    rho, n = res.autocorrelation
+    assert res.convergence.converged and res.statistics.s2 < 2.0
+    assert rho > 0.05 and rho * np.sqrt(n) > 4
+    summary = dynamic_summary([res], 1)
+    assert summary["trust"]["trusted"] == []
+    assert any("correlated from sample to sample" in c for c in summary["trust"]["caveats"])
 
 
 def test_a_fit_that_does_not_converge_says_so(setup) -> None:

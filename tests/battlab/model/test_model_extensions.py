@@ -191,11 +191,13 @@ def test_a_fit_recovers_extension_parameters_with_the_base_ones(nca: Cell) -> No
     data are found with R_f_n, from the base values."""
     from battlab.identify import fit as F
     from battlab.identify.experiments import Experiment
+    from battlab.identify.forward import DT_FIRST
 
     truth = nca.with_extension("contact_resistance", R_c=0.006).with_extension("current_sensor", offset=0.03)
     truth = truth.with_values(R_f_n=2e-4)
     prof = pulses(1200.0)
-    y = battlab.simulate(truth, prof, soc0=0.6, settings=Settings(adaptive=False)).voltage  # the fit's steps
+    fit_steps = Settings(adaptive=False, dt_first=DT_FIRST)
+    y = battlab.simulate(truth, prof, soc0=0.6, settings=fit_steps).voltage
     start = nca.with_extension("contact_resistance").with_extension("current_sensor")
     exp = Experiment("pulses", prof, y, 0.6, 1e-8)
     names = ("contact_resistance.R_c", "current_sensor.offset", "R_f_n")
