@@ -4,8 +4,9 @@ stages), with how far each interval can be trusted.
 An interval (eq. 46) is a statement about noise around a converged fit of a model that explains its data. It is
 marked ``trusted: false`` with the reasons when that does not hold: the fit did not converge, the statistics are
 invalid, the parameter is set-identified (only its invariant τ, κ or ρ is: its interval is an orbit), it sits at a
-bound (one-sided) or its interval runs to one (the data do not inform it there), or s² shows model error (then the
-interval scaled by s², ``ci95_scaled``, is the honest one, and is given).
+bound (one-sided) or its interval runs to one (the data do not inform it there), s² shows model error (then the
+interval scaled by s², ``ci95_scaled``, is given), or the residual is correlated from sample to sample (model error
+that s² may not show); an invariant also when a factor of it sits at a bound.
 """
 
 from __future__ import annotations
