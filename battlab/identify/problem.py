@@ -242,19 +242,19 @@ def rmse_mV(exps: Sequence[Experiment], preds: list[np.ndarray]) -> dict[str, fl
 
 
 def residual_autocorrelation(exps: Sequence[Experiment], preds: list[np.ndarray]) -> tuple[float, int]:
-    """Lag-1 autocorrelation of the weighted residual, pooled over the experiments (consecutive scored samples of
-    each), and the number of pairs. White noise gives 0 ± 1/√n; a residual the model cannot follow (model error the
-    fit absorbed into its parameters) is correlated from sample to sample, whatever s² and the noise model say."""
+    """Lag-1 autocorrelation of the weighted residual, pooled over the experiments (pairs of neighbouring samples
+    that are both scored), and the number of pairs. White noise gives 0 ± 1/√n; a residual the model cannot follow
+    (model error the fit absorbed into its parameters) is correlated from sample to sample, whatever s² and the noise
+    model say."""
     num = den = 0.0
     n = 0
     for e, p in zip(exps, preds, strict=True):
-        w = ((p - e.voltage) / np.sqrt(e.variance))[e.mask]
-        if w.size < 2:
-            continue
-        num += float(w[:-1] @ w[1:])
-        den += float(w @ w)
-        n += w.size - 1
-    return (num / den if den > 0 else float("nan")), n
+        w = (p - e.voltage) / np.sqrt(e.variance)
+        pair = e.mask[:-1] & e.mask[1:]
+        num += float(w[:-1][pair] @ w[1:][pair])
+        den += float(w[e.mask] @ w[e.mask])
+        n += int(pair.sum())
+    return (num / den if den > 0 and n > 0 else float("nan")), n
 
 
 def abs_errors_mV(exps: Sequence[Experiment], preds: list[np.ndarray]) -> np.ndarray:

@@ -45,3 +45,15 @@ def test_a_correlated_residual_is_model_error_whatever_s2_says() -> None:
     assert fit_caveats(True, st, (0.02, 10_000)) == []  # small: within what eq. 46 tolerates
     assert fit_caveats(True, st, (0.2, 100)) == []  # 2 standard errors of white noise: not shown to be correlated
     assert fit_caveats(True, st, (math.nan, 0)) == []
+
+
+def test_the_autocorrelation_pairs_only_neighbours_that_are_both_scored() -> None:
+    from battlab.identify.experiments import Experiment
+    from battlab.identify.problem import residual_autocorrelation
+    from protocols.profile import Profile
+
+    prof = Profile(np.arange(5.0), np.zeros(5), id="p")
+    mask = np.array([True, True, False, True, True])  # sample 2 is not scored: no pair across it
+    e = Experiment("e", prof, np.zeros(5), 0.5, 1.0, mask=mask)
+    rho, n = residual_autocorrelation([e], [np.array([1.0, -1.0, 100.0, 1.0, -1.0])])
+    assert n == 2 and rho == -0.5  # pairs (0, 1) and (3, 4); the residual of 100 is left out
