@@ -112,7 +112,7 @@ def main() -> None:
         for label, sel in (("whole test", slice(None)), ("to 90 % of its charge", m)):
             rm = [float(1e3 * np.sqrt(np.nanmean((p[sel] - e.voltage[sel]) ** 2))) for p in (before, after)]
             print(f"  {e.name:18s} {rm[0]:14.2f} {rm[1]:12.2f}   (HWFET prediction, {label})")
-        o = fm.run(fm.theta_of(res.cell), e.profile, e.soc0, ambient=e.ambient, T0=e.T0)
+        o = fm.run(fm.theta_of(res.cell), e.profile, e.soc0, ambient=e.ambient, T0=e.T0, sample_delay=e.sample_delay)
         k = o.voltage.size
         print(
             f"  {e.name:18s} {'':14s} {1e3 * np.sqrt(np.mean((o.voltage - e.voltage[:k]) ** 2)):12.2f}   (HWFET "

@@ -197,4 +197,12 @@ def _preparation_logs(preparations: Sequence[tuple[str | Path, str | Path]], fix
 
 
 def simulate_on(fm: Any, e: Experiment, names: Sequence[str] = ()) -> Any:
-    return fm.run(fm.theta_of(fm.cell), e.profile, e.soc0, ambient=e.ambient, T0=e.T0, sensitivities=names)
+    return fm.run(
+        fm.theta_of(fm.cell),
+        e.profile,
+        e.soc0,
+        ambient=e.ambient,
+        T0=e.T0,
+        sensitivities=names,
+        sample_delay=e.sample_delay,
+    )

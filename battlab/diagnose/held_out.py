@@ -66,7 +66,9 @@ def held_out(fm: object, cell: Cell, parts: Sequence[Part], temperature: bool = 
         e = p.experiment
         if p.train >= p.n:
             continue
-        out = fm.run(fm.theta_of(cell), e.profile, e.soc0, ambient=e.ambient, T0=e.T0)  # type: ignore[attr-defined]
+        out = fm.run(  # type: ignore[attr-defined]
+            fm.theta_of(cell), e.profile, e.soc0, ambient=e.ambient, T0=e.T0, sample_delay=e.sample_delay
+        )
         k = out.voltage.size
         v = np.full(p.n, np.nan)
         v[:k] = out.voltage

@@ -46,6 +46,8 @@ class Experiment:
     ``soc0``; ``ambient`` and ``T0`` [K]; ``mask`` selects the samples that enter the fit (default all).
     ``lead_in``: the first samples only carry the cell's state into the scored part (e.g. the logged preparation
     from a full charge to the profile's start): they are simulated, never scored (the mask excludes them).
+    ``sample_delay``: the tester's set-to-sample delay (:func:`logged_sample_delay`); the model changes the current
+    that long before the sample that logs the change (``Settings.current_lead``).
     """
 
     name: str
@@ -60,6 +62,7 @@ class Experiment:
     lead_in: int = 0
     temperature: np.ndarray | None = None  # measured surface temperature [K] at ``profile.t`` (NaN: none there)
     t_variance: float = 0.0  # its noise variance [K²] (0: unknown, the temperature is not scored)
+    sample_delay: float = 0.0  # [s] each sample's current took effect this long before it (0: at its time stamp)
 
     def __post_init__(self) -> None:
         v = np.asarray(self.voltage, float).reshape(-1)
@@ -291,8 +294,37 @@ def experiments_from_data(
             ok = np.isfinite(surf[sl])
             T = np.interp(t + data.t[sl][0], data.t[sl][ok], surf[sl][ok])
             t_var = temperature_noise_variance(surf[sl][ok])
-        out.append(Experiment(name, prof, v, soc, variance_of(prof, noise), amb, T0, temperature=T, t_variance=t_var))
+        out.append(
+            Experiment(
+                name,
+                prof,
+                v,
+                soc,
+                variance_of(prof, noise),
+                amb,
+                T0,
+                temperature=T,
+                t_variance=t_var,
+                sample_delay=logged_sample_delay(data),
+            )
+        )
     return out
+
+
+def logged_sample_delay(data: LoggedData) -> float:
+    """The mean time [s] from a change of the current to the sample that logs it, as battlab's run engine records
+    it in a run log (``meta["final"]["stats"]["mean_set_to_sample_s"]``: the instrument's time stamps of the
+    setting and of the reading); 0 for a file that does not say. A host-paced tester sets the current, then
+    measures: on the virtual tester 10 ms, whose relaxation after a current step is 0.1 mV per ampere of the step
+    on nca18650-true, a third of its noise, and correlated from sample to sample."""
+    final = data.meta.get("final")
+    stats = final.get("stats") if isinstance(final, dict) else None
+    value = stats.get("mean_set_to_sample_s") if isinstance(stats, dict) else None
+    try:
+        d = float(value) if value is not None else 0.0
+    except (TypeError, ValueError):
+        return 0.0
+    return d if 0.0 < d < 1e3 else 0.0
 
 
 #: the smallest temperature noise assumed [K]: a logger's resolution below it is not believed

@@ -157,6 +157,9 @@ def _prepare(o: FitOptions, dyn: Sequence[Any], cell: Cell, report: FitReport) -
             report.summary["not_informed"] = dropped
     check_stages_informed(st, cell)
     report.experiments = list(exps)
+    delays = {e.name: e.sample_delay for e in exps if e.sample_delay > 0}
+    if delays:  # the run logs' set-to-sample delay: the model changes the current that much before each sample
+        report.summary["sample_delay_s"] = delays
     return _Dynamic(exps, st, ForwardModel(cell, v_margin=0.15), ageing, by_ambient)
 
 

@@ -4,7 +4,8 @@
 model build (≈0.5 s) although the compiled stepper takes θ̄ as an input. :class:`ForwardModel` keeps the stepper
 of one base cell and passes θ̄ straight to it (same solver, same limits, same sign conversion as
 ``battlab.simulate``; a test checks they agree). Its steps end at every sample (``Settings(adaptive=False)``,
-restarting with a :data:`DT_FIRST` step where the current changes):
+restarting with a :data:`DT_FIRST` step where the current changes, or with a step of the tester's set-to-sample delay
+``sample_delay`` before the sample where the log says the current changed that much earlier):
 error-controlled steps would move with θ̄ and make the cost a step function at the level of the tolerance.
 Without a C compiler it falls back to ``battlab.simulate``.
 """
@@ -107,13 +108,17 @@ class ForwardModel:
         sensitivities: Sequence[str] = (),
         start: tuple[float, float] | None = None,
         capacity: float = 1.0,
+        sample_delay: float = 0.0,
     ) -> Output:
         """Voltage and dV/dθ̄ for the named parameters under ``profile`` from rest at ``soc0``.
+
+        ``sample_delay`` [s]: each sample's current took effect this long before its time stamp (the tester's
+        set-to-sample delay, :class:`battlab.model.state.Settings` ``current_lead``).
 
         Per-file ageing (:mod:`battlab.identify.ageing`): ``start`` (θ⁻, θ⁺) replaces the stoichiometries at
         ``soc0``; ``capacity`` c scales the electrode area: the model runs at the current I/c (the same current
         densities) and the contact resistance's drop is corrected from R_c I/c to R_c I."""
-        out = self._run(theta_bar, profile, soc0, ambient, T0, sensitivities, start, capacity)
+        out = self._run(theta_bar, profile, soc0, ambient, T0, sensitivities, start, capacity, sample_delay)
         return out if capacity == 1.0 else self._contact_corrected(out, theta_bar, profile, capacity, sensitivities)
 
     def _contact_corrected(
@@ -149,6 +154,7 @@ class ForwardModel:
         sensitivities: Sequence[str],
         start: tuple[float, float] | None,
         capacity: float,
+        sample_delay: float = 0.0,
     ) -> Output:
         names = check_sensitivities(self.cell, sensitivities)
         theta_bar = np.asarray(theta_bar, float)
@@ -159,7 +165,8 @@ class ForwardModel:
             )
         from battlab.model import solver
 
-        steps = solver.Settings(adaptive=False, dt_first=DT_FIRST)  # steps that do not move with θ̄: a smooth cost
+        # steps that do not move with θ̄: a smooth cost
+        steps = solver.Settings(adaptive=False, dt_first=DT_FIRST, current_lead=float(sample_delay))
         if stepper is None:
             lim = (float(self.cell["V_min"]) - self.v_margin, float(self.cell["V_max"]) + self.v_margin)
             cell = self.cell_at(theta_bar)

@@ -212,6 +212,7 @@ class Problem:
             sensitivities=self.names if sens else (),
             start=start,
             capacity=capacity,
+            sample_delay=e.sample_delay,
         )
         pred = np.empty(n)
         S = np.zeros((n, len(self.names)))

@@ -23,7 +23,9 @@ from protocols.profile import Profile
 def prediction(forward: ForwardModel, cell: Cell, exp: Experiment) -> tuple[np.ndarray, str | None]:
     """The voltage of ``cell`` under an experiment, NaN where the simulation did not reach (it stopped early:
     a held last value is not a prediction), and why it stopped (None: it covered the experiment)."""
-    out = forward.run(forward.theta_of(cell), exp.profile, exp.soc0, ambient=exp.ambient, T0=exp.T0)
+    out = forward.run(
+        forward.theta_of(cell), exp.profile, exp.soc0, ambient=exp.ambient, T0=exp.T0, sample_delay=exp.sample_delay
+    )
     pred = np.full(exp.voltage.size, np.nan)
     pred[: out.voltage.size] = out.voltage
     return pred, out.ended_by if out.voltage.size < exp.voltage.size else None

@@ -26,6 +26,12 @@ class Schedule:
     t_end: np.ndarray
 
 
+#: a change of the current smaller than this × 1C keeps its time stamp under ``Settings.current_lead``: a logged
+#: current's noise (0.2 mA on the virtual tester) is no setting of it, and a lead step at every sample of a rest would
+#: double the steps for nothing (moving 3 mA by 10 ms changes the voltage by 0.3 µV)
+LEAD_MIN_C = 1e-3
+
+
 def next_step(remaining: float, h_allowed: float) -> float:
     """The next step [s] in what remains of a sample interval: all of it within 1.2 h_allowed, half of it within
     2 h_allowed, else h_allowed (so no sliver step ends an interval)."""
@@ -61,6 +67,8 @@ def split_ends(t_end: np.ndarray, h: np.ndarray, pos: int) -> np.ndarray:
 def schedule(t: np.ndarray, I_dis: np.ndarray, i_1c: float, s: Settings) -> Schedule:
     """The step plan of a profile (zero-order hold: a step never straddles a change of the current)."""
     if s.across_samples:
+        if s.current_lead:
+            raise ValueError("Settings.current_lead needs steps aligned with the samples (across_samples=False)")
         return _across_samples(t, I_dis, i_1c, s)
     return _aligned(t, I_dis, i_1c, s)
 
@@ -113,7 +121,11 @@ def _across_samples(t: np.ndarray, I_dis: np.ndarray, i_1c: float, s: Settings) 
 
 
 def _aligned(t: np.ndarray, I_dis: np.ndarray, i_1c: float, s: Settings) -> Schedule:
-    """Steps aligned with every sample."""
+    """Steps aligned with every sample; with ``s.current_lead`` a change of the current (above :data:`LEAD_MIN_C`)
+    takes effect that long before the sample that carries it: the interval before it (if at least twice as long) ends
+    with a backward-Euler step of ``current_lead`` at the new current, from which the steps grow on as after any
+    restart (a 10 ms first step is also the more accurate start: 0.003 mV RMS from a 5 ms solution on library profile
+    541, against 0.04 mV for a 0.15 s one)."""
     hs: list[float] = []
     ws: list[float] = []
     cs: list[float] = []
@@ -122,11 +134,18 @@ def _aligned(t: np.ndarray, I_dis: np.ndarray, i_1c: float, s: Settings) -> Sche
     h_allowed = s.dt_first
     h_prev = 0.0
     t0 = float(t[0])
+    lead = float(s.current_lead)
+    if not 0.0 <= lead < float("inf"):
+        raise ValueError(f"Settings.current_lead must be a finite time >= 0 s, got {lead}")
+    led = False  # the interval before ended with a lead step (its steps go on growing from it)
     for k in range(len(t) - 1):
-        restart = k == 0 or abs(I_dis[k] - I_dis[k - 1]) > max(s.refine_rate * i_1c, 1e-12 * i_1c)
+        jump = k == 0 or abs(I_dis[k] - I_dis[k - 1]) > max(s.refine_rate * i_1c, 1e-12 * i_1c)
+        restart = jump and not led  # after a lead step its BDF2 history continues
         if restart:
             h_allowed = s.dt_first
-        remaining = float(t[k + 1] - t[k])
+        span = float(t[k + 1] - t[k])
+        led = lead > 0.0 and abs(I_dis[k + 1] - I_dis[k]) > LEAD_MIN_C * i_1c and lead <= 0.5 * span
+        remaining = span - lead if led else span
         done = 0.0
         while remaining > 1e-12 * max(1.0, float(t[k + 1])):
             h = next_step(remaining, h_allowed)
@@ -140,6 +159,13 @@ def _aligned(t: np.ndarray, I_dis: np.ndarray, i_1c: float, s: Settings) -> Sche
             t_end.append(float(t[k]) - t0 + done)
             h_prev = h
             h_allowed = min(h * s.growth, s.dt_max)
-        t_end[-1] = float(t[k + 1]) - t0
+        t_end[-1] = float(t[k + 1]) - t0 - (lead if led else 0.0)
+        if led:  # the next sample's current, for the last ``lead`` seconds before it
+            hs.append(lead)
+            ws.append(0.0)
+            cs.append(float(I_dis[k + 1]))
+            t_end.append(float(t[k + 1]) - t0)
+            h_prev = lead
+            h_allowed = min(lead * s.growth, s.dt_max)
         ends.append(len(hs) - 1)
     return Schedule(np.array(hs), np.array(ws), np.array(cs), np.array(ends, dtype=int), np.array(t_end))

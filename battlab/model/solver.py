@@ -149,6 +149,8 @@ def run_native(
     ramp = I_dis[0] * np.array([0.0, 0.125, 0.25, 0.5, 1.0])
     n0 = ramp.size
     adaptive = settings.adaptive and settings.replay is None
+    if adaptive and settings.current_lead:
+        raise ValueError("Settings.current_lead needs steps aligned with the samples (adaptive=False)")
     if settings.replay is not None:  # the steps another run accepted (its ramp included)
         h, w, cur, t_end = (np.asarray(a, float) for a in settings.replay)
     elif adaptive:  # the ramp here; the steps are chosen as the run goes (below)

@@ -47,6 +47,13 @@ class Settings:
     steps are returned (``Trajectory.steps``) and ``replay`` runs exactly those steps again, e.g. at a perturbed
     θ̄ for finite differences. Measured on nca18650 at 1C (1 s samples, against a time-converged solution):
     430 steps instead of 3706, 0.05 mV RMSE, 0.7 mV at most in the knee. The CasADi stepper ignores it.
+
+    ``current_lead`` [s]: each sample's current took effect this long before the sample's time stamp, so that its
+    voltage was read that long after the change (a host-paced tester sets the current, then measures: its
+    set-to-sample delay). Steps aligned with the samples only (``adaptive`` and ``across_samples`` False): the
+    interval before a sample whose current differs (by more than ``schedule.LEAD_MIN_C`` × 1C) ends with a
+    backward-Euler step of ``current_lead`` at the new current, from which the steps grow as after any restart. 0: the
+    current changes at the sample's time stamp.
     """
 
     dt_max: float = 10.0
@@ -60,6 +67,7 @@ class Settings:
     atol: float = 1e-6
     h_max: float = 600.0
     replay: tuple[np.ndarray, ...] | None = None
+    current_lead: float = 0.0
 
 
 @dataclass
