@@ -240,7 +240,7 @@ def truth_residuals(log: Path, noise: Path | None, soc_span: float = 0.0) -> Non
     chi2, n, parts = dict.fromkeys(models, 0.0), 0, []
 
     def residual(e: Any, soc0: float) -> np.ndarray:
-        out = fm.run(th, e.profile, soc0, ambient=e.ambient, T0=e.T0)
+        out = fm.run(th, e.profile, soc0, ambient=e.ambient, T0=e.T0, sample_delay=e.sample_delay)
         k = out.voltage.size
         return (out.voltage - e.voltage[:k])[e.mask[:k]]  # the profile's samples (a lead-in only carries the state)
 
@@ -537,9 +537,11 @@ def main() -> None:
         print("per run (interior parameters): " + "; ".join(per_run))
         trusted = [x[0] for v in tally.values() for x in v if x[2]]
         if trusted:
+            scaled = [bool(x[1]) for v in tally.values() for x in v if x[2]]
             print(
                 f"trusted intervals over the seeds: {sum(trusted)} of {len(trusted)} cover the truth "
-                f"({100 * sum(trusted) / len(trusted):.0f} %; nominal 95 %); "
+                f"({100 * sum(trusted) / len(trusted):.0f} %; nominal 95 %), {sum(scaled)} scaled by s2 "
+                f"({100 * sum(scaled) / len(scaled):.0f} %); "
                 f"{sum(x[2] for v in tally.values() for x in v)} of {sum(len(v) for v in tally.values())} trusted"
             )
         if fit_s:

@@ -5,13 +5,15 @@ the final intervals are the last stage's.
 The same defaults everywhere (:class:`FitSettings`): parameters the data cannot inform are refused before any
 simulation (:func:`battlab.identify.informing.check_informed`), and where a stage would estimate all four orbit
 parameters of an electrode its R_s is held at the stage's start value and the identifiable invariants τ, κ, ρ are
-fitted and reported (:mod:`battlab.identify.reduced`).
+fitted and reported (:mod:`battlab.identify.reduced`); a stage that ends with such an electrode's D_s, k or R_f at a
+bound is fitted again from the point of the orbit where it has room (the bound was the held R_s's, not the data's).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 
 from battlab.cell import Cell
 from battlab.identify import fit as F
@@ -43,6 +45,19 @@ class FitSettings:
 
     def options(self) -> F.Options:
         return F.Options(max_nfev=self.max_evaluations, polish=self.polish, workers=self.workers)
+
+
+#: a stage whose held electrode ends with D_s, k or R_f at a bound is fitted again from another point of its orbit
+#: (:func:`battlab.identify.reduced.reseated`) at most this many times, kept when it ends at a lower cost
+RESEATS = 2
+
+
+def _aged(ageing: Ageing | None, res: FitResult) -> Ageing | None:
+    """The per-file ageing values starting where ``res`` left them."""
+    if ageing is None:
+        return None
+    values = res.extra.get("ageing", {})
+    return ageing.with_start({f: {n: v["value"] for n, v in d.items()} for f, d in values.items()})
 
 
 def stage_names(stages: Sequence[Stage], hold_radii: bool) -> list[tuple[list[str], list[str]]]:
@@ -102,25 +117,43 @@ def fit_cumulative(
         try:
             if rep is not None:
                 rep("start", 0, opts.max_nfev, f"{len(fitted)} parameters, {len(exps)} experiments")
-            res = F.fit(
+            run = partial(
+                F.fit,
                 cell,
-                exps,
+                list(exps),
                 fitted,
                 options=opts,
                 forward=fm,
-                start=current,
                 stage=k,
                 soc_span=settings.soc_span,
-                soc_start=socs,
-                ageing=ageing,
                 on_evaluation=tick,
             )
+            res = run(start=current, soc_start=socs, ageing=ageing)
+            tries = [res.convergence]
+            for _ in range(RESEATS if held else 0):  # a bound the held R_s imposes: the same stage from another R_s
+                moved = reduced.reseated(res.cell, held)
+                if moved is None:
+                    break
+                if rep is not None:
+                    where = ", ".join(f"{r} × {m:.3g}" for r, m in moved[1].items())
+                    rep("start", 0, opts.max_nfev, f"again from {where} (its orbit, where no bound holds it)")
+                again = run(start=moved[0], soc_start={**socs, **res.extra.get("soc0", {})}, ageing=_aged(ageing, res))
+                tries.append(again.convergence)
+                if not again.convergence.cost < res.convergence.cost:
+                    break
+                total = dict(res.extra.get("reseated", {}))  # the product of the moves: R_s / the held start value
+                again.extra["reseated"] = {r: total.get(r, 1.0) * m for r, m in moved[1].items()} | {
+                    r: m for r, m in total.items() if r not in moved[1]
+                }
+                res = again
+            if len(tries) > 1:  # the stage's cost is all its fits'
+                c = res.convergence
+                total = replace(c, iterations=sum(t.iterations for t in tries), seconds=sum(t.seconds for t in tries))
+                res = replace(res, convergence=total)
             socs.update(res.extra.get("soc0", {}))
-            if ageing is not None:
-                values = res.extra.get("ageing", {})
-                ageing = ageing.with_start({f: {n: v["value"] for n, v in d.items()} for f, d in values.items()})
+            ageing = _aged(ageing, res)
             if held:
-                res = replace(res, statistics=reduced.with_held(res.statistics, reduced.held_values(current, held)))
+                res = replace(res, statistics=reduced.with_held(res.statistics, reduced.held_values(res.cell, held)))
             if rep is not None:
                 rep("stop", res.convergence.iterations, opts.max_nfev, res.convergence.reason)
             if on_stage is not None:
@@ -134,4 +167,4 @@ def fit_cumulative(
     return results
 
 
-__all__ = ["FitSettings", "Stage", "StageError", "check_stages_informed", "fit_cumulative", "stage_names"]
+__all__ = ["RESEATS", "FitSettings", "Stage", "StageError", "check_stages_informed", "fit_cumulative", "stage_names"]

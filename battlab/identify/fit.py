@@ -120,6 +120,8 @@ class FitResult:
             "seconds": c.seconds,
             "statistics_valid": st.valid,
             "statistics_note": st.reason,
+            # held radii moved along their orbits (R_s / its start value) where a bound held the first fit
+            "reseated": dict(self.extra.get("reseated", {})),
             "s2": st.s2,
             "residual_autocorrelation": self.autocorrelation[0] if np.isfinite(self.autocorrelation[0]) else None,
             "condition": st.condition,

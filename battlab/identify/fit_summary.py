@@ -6,7 +6,7 @@ marked ``trusted: false`` with the reasons when that does not hold: the fit did 
 invalid, the parameter is set-identified (only its invariant τ, κ or ρ is: its interval is an orbit), it sits at a
 bound (one-sided) or its interval runs to one (the data do not inform it there), s² shows model error (then the
 interval scaled by s², ``ci95_scaled``, is given), or the residual is correlated from sample to sample (model error
-that s² may not show); an invariant also when a factor of it sits at a bound.
+that s² may not show); an invariant also when a parameter of its electrode's orbit sits at a bound.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import Any
 from battlab import parameters
 from battlab.identify.fit import FitResult
 from battlab.identify.statistics import Estimate, Statistics
-from battlab.identify.symmetry import INVARIANTS, bounds_range
+from battlab.identify.symmetry import INVARIANTS, ORBITS, bounds_range
 
 #: s² above this: the weighted residual is model error, not the noise the weights assume (at N ≈ 10⁴ samples the
 #: sampling spread of s² is about ±0.02, so 2 is far outside it)
@@ -95,12 +95,19 @@ def parameter_entry(e: Estimate, caveats: Sequence[str]) -> dict[str, Any]:
 
 
 def invariant_caveats(name: str, ci95: tuple[float, float], estimates: Sequence[Estimate]) -> list[str]:
-    """Why an invariant's interval cannot be trusted, beyond the fit's own caveats: a factor of it sits at a bound
-    (the orbit is cut there; the delta-method interval then moves only with the free factors, e.g. κ = k/R_s with k
-    held at its bound varies as 1/R_s alone), or the interval runs to the range the bounds allow."""
+    """Why an invariant's interval cannot be trusted, beyond the fit's own caveats: a parameter of its electrode's
+    orbit sits at a bound (the orbit is cut there: for a factor of the invariant the delta-method interval moves only
+    with the free factors, e.g. κ = k/R_s with k held at its bound varies as 1/R_s alone; for the others, what the
+    bound denies is put into them: with k_n held at its bound ρ_n came out 2.9 × its truth, its interval 1.4 % wide,
+    ``tests/battlab/identify/test_identify_symmetry.py``), or the interval runs to the range the bounds allow."""
     powers = next(inv[name] for inv in INVARIANTS.values() if name in inv)
+    orbit = next(o for o in ORBITS.values() if set(powers) <= set(o))
     by = {e.name: e for e in estimates}
-    out = [f"{n} at its {by[n].at_bound} bound: the interval is conditional on it" for n in powers if by[n].at_bound]
+    out = [
+        f"{n} at its {by[n].at_bound} bound: the interval is conditional on it"
+        for n in orbit
+        if n in by and by[n].at_bound
+    ]
     lo, hi = bounds_range(powers)
     if ci95[0] <= lo * (1 + AT_EDGE) or ci95[1] >= hi * (1 - AT_EDGE):
         out.append("its interval runs to the range the bounds allow: the data do not inform it there")
@@ -128,8 +135,10 @@ def dynamic_summary(results: Sequence[FitResult], total: int, base: dict[str, An
     last = results[-1]
     st = last.statistics
     partial = len(results) < total
-    converged = bool(out.get("converged", True) and all(r.convergence.converged for r in results) and not partial)
-    caveats = fit_caveats(all(r.convergence.converged for r in results), st, last.autocorrelation)
+    # the result and its intervals are the last stage's, at its end point (it refits every earlier stage's
+    # parameters): an earlier stage that stopped at its limit only gave it its start
+    converged = bool(out.get("converged", True) and last.convergence.converged and not partial)
+    caveats = fit_caveats(last.convergence.converged, st, last.autocorrelation)
     if not st.valid:
         caveats.append(f"invalid statistics: {st.reason}")
     for e in st.estimates:

@@ -10,7 +10,9 @@ parameters the set-identified intervals of the orbits consistent with them and t
 (:func:`symmetry.orbit_intervals`); the held R_s is reported as one point of its orbit, flagged set-identified.
 
 A held R_s is only one representative: when D_s, k or R_f ends at a bound the orbit through a different R_s could
-reach the invariants the bound denies; the note says so.
+reach the invariants the bound denies (a true k at its lower bound is reachable only from R_s at or above the true
+one). :func:`reseated` moves such an electrode along its orbit, which leaves the model's output unchanged, to where
+the bound parameter has room, and the cumulative fit fits the stage again from there.
 """
 
 from __future__ import annotations
@@ -71,9 +73,55 @@ def with_held(st: Statistics, held: Mapping[str, float]) -> Statistics:
     return replace(st, estimates=tuple(est), invariants=tuple(invs.values()), reason=reason)
 
 
+#: θ̄ this close to 0 or 1: a parameter at its bound
+AT_EDGE = 1e-3
+#: a move along the orbit smaller than this factor is not worth a refit
+MIN_MOVE = 1.05
+
+
+def orbit_room(values: Mapping[str, float], electrode: str) -> tuple[float, float]:
+    """The factors λ (λ_lo ≤ 1 ≤ λ_hi) by which ``electrode``'s orbit can move, (R_s, D_s, k, R_f) → (λ R_s, λ² D_s,
+    λ k, R_f / λ), with all four within their bounds (physical ``values``)."""
+    lo, hi = 0.0, float("inf")
+    for name, e in symmetry.ORBITS[electrode].items():
+        spec = parameters.spec(name)
+        a, b = (spec.lower / values[name]) ** (1 / e), (spec.upper / values[name]) ** (1 / e)
+        a, b = min(a, b), max(a, b)
+        lo, hi = max(lo, a), min(hi, b)
+    return min(lo, 1.0), max(hi, 1.0)
+
+
+def reseated(cell: Any, held: Sequence[str]) -> tuple[Any, dict[str, float]] | None:
+    """``cell`` moved along the orbit of each held electrode whose D_s, k or R_f sits at a bound, halfway (in log λ)
+    to the farthest point in the direction that frees it where all four stay within their bounds; the moves {R_s: λ}.
+    None when no electrode can move by :data:`MIN_MOVE` (nothing at a bound, bounds pulling both ways, no room)."""
+    moves: dict[str, float] = {}
+    values: dict[str, float] = {}
+    for r in held:
+        electrode = r.rsplit("_", 1)[1]
+        orbit = symmetry.ORBITS[electrode]
+        vals = {n: float(cell[n]) for n in orbit}
+        want = set()
+        for n, e in orbit.items():
+            th = float(cell.normalised(n))
+            if n == r or AT_EDGE < th < 1.0 - AT_EDGE:
+                continue
+            up = th >= 1.0 - AT_EDGE  # at its upper bound: λ^e must fall
+            want.add(-1 if up == (e > 0) else 1)
+        if len(want) != 1:
+            continue
+        lo, hi = orbit_room(vals, electrode)
+        lam = hi**0.5 if want == {1} else lo**0.5
+        if max(lam, 1 / lam) < MIN_MOVE:
+            continue
+        moves[r] = lam
+        values.update({n: v * lam ** orbit[n] for n, v in vals.items()})
+    return (cell.with_values(**values), moves) if moves else None
+
+
 def held_values(cell: Any, held: Sequence[str]) -> dict[str, float]:
     """θ̄ of the held radii in ``cell``."""
     return {n: float(cell.normalised(n)) for n in held}
 
 
-__all__ = ["held_values", "split", "with_held"]
+__all__ = ["held_values", "orbit_room", "reseated", "split", "with_held"]

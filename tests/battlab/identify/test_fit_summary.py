@@ -1,5 +1,5 @@
-"""How far the summary trusts an invariant's interval: a factor held at a bound or an interval that runs to the
-bounds' range makes it untrusted, with why; an interior, informed invariant of a converged fit stays trusted."""
+"""How far the summary trusts an invariant's interval: a bound in its electrode's orbit or an interval that runs to
+the bounds' range makes it untrusted, with why; an interior, informed invariant of a converged fit stays trusted."""
 
 from __future__ import annotations
 
@@ -18,13 +18,16 @@ def estimate(name: str, value: float, at_bound: str | None = None) -> Estimate:
 ORBIT_N = [estimate("R_s_n", 2e-5), estimate("D_s_n", 2.6e-14), estimate("R_f_n", 1e-4)]
 
 
-def test_an_invariant_whose_factor_sits_at_a_bound_is_conditional_on_it() -> None:
+def test_an_electrodes_invariants_are_conditional_on_a_bound_in_its_orbit() -> None:
     k_at_bound = [*ORBIT_N, estimate("k_n", 7.5e-5, at_bound="lower")]
-    why = invariant_caveats("kappa_n", (3.5, 4.0), k_at_bound)
-    assert why == ["k_n at its lower bound: the interval is conditional on it"]
-    # tau_n and rho_n do not contain k_n: the bound on k_n says nothing about them
-    assert invariant_caveats("tau_n", (1.5e4, 1.6e4), k_at_bound) == []
-    assert invariant_caveats("rho_n", (1.9e-9, 2.1e-9), k_at_bound) == []
+    why = ["k_n at its lower bound: the interval is conditional on it"]
+    assert invariant_caveats("kappa_n", (3.5, 4.0), k_at_bound) == why
+    # tau_n and rho_n do not contain k_n, but the fit puts into them what the bound denies kappa_n
+    assert invariant_caveats("tau_n", (1.5e4, 1.6e4), k_at_bound) == why
+    assert invariant_caveats("rho_n", (1.9e-9, 2.1e-9), k_at_bound) == why
+    # the other electrode's are not
+    p_free = [estimate("R_s_p", 2e-5), estimate("D_s_p", 6e-14), estimate("k_p", 1e-3), estimate("R_f_p", 4e-4)]
+    assert invariant_caveats("rho_p", (7e-9, 9e-9), [*k_at_bound, *p_free]) == []
 
 
 def test_an_invariant_interval_that_runs_to_the_bounds_range_is_not_informed_there() -> None:

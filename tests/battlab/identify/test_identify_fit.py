@@ -89,6 +89,15 @@ def test_a_fit_that_does_not_converge_says_so(setup) -> None:
     assert not res.convergence.converged
     assert "maximum number of iterations" in res.convergence.reason
     assert res.convergence.cost <= res.convergence.cost_start  # best point, never worse than the start
+    from dataclasses import replace
+
+    from battlab.identify.fit_summary import dynamic_summary
+
+    # the intervals are the last stage's: its convergence decides their trust, an earlier stage's limit does not
+    done = replace(res, convergence=replace(res.convergence, converged=True), stage=2)
+    assert "the fit did not converge" in dynamic_summary([done, res], 2)["trust"]["caveats"]
+    later = dynamic_summary([res, done], 2)
+    assert "the fit did not converge" not in later["trust"]["caveats"] and later["converged"]
 
 
 def test_gauss_newton_polish_finishes_a_truncated_fit(setup) -> None:

@@ -118,3 +118,69 @@ def test_invariant_of_a_parameter_the_data_do_not_determine_is_bounded_not_overf
         value = P.SPECS[n].denormalise(float(th[k]))
         lo, hi = orbit[n]
         assert P.SPECS[n].lower <= lo <= value * (1 + 1e-9) and value * (1 - 1e-9) <= hi <= P.SPECS[n].upper
+
+
+def test_an_electrode_held_at_a_bound_by_its_radius_moves_along_its_orbit_to_where_it_is_free() -> None:
+    """k_n at its lower bound with R_s_n held: the orbit moves up (λ > 1), halfway in log λ to where the first of
+    the four would reach its bound; the invariants stay, all four stay within their bounds, k_n leaves its bound."""
+    from battlab.identify import reduced
+
+    cell = battlab.Cell.load("nca18650").with_values(R_s_n=1.0e-5, D_s_n=3.0e-14, k_n=7.5e-5, R_f_n=2.0e-4)
+    moved, moves = reduced.reseated(cell, ["R_s_n"])
+    lo, hi = reduced.orbit_room({n: float(cell[n]) for n in symmetry.ORBITS["n"]}, "n")
+    assert lo == pytest.approx(1.0) and moves == {"R_s_n": pytest.approx(hi**0.5)} and moves["R_s_n"] > reduced.MIN_MOVE
+    before = {n: float(cell[n]) for n in symmetry.ORBITS["n"]}
+    after = {n: float(moved[n]) for n in symmetry.ORBITS["n"]}
+    for powers in symmetry.INVARIANTS["n"].values():
+        inv = lambda v, powers=powers: float(np.prod([v[n] ** a for n, a in powers.items()]))  # noqa: E731
+        assert inv(after) == pytest.approx(inv(before), rel=1e-12)
+    for n, v in after.items():
+        assert P.SPECS[n].lower < v < P.SPECS[n].upper
+    assert after["k_n"] > 1.5 * P.SPECS["k_n"].lower
+    assert float(moved["R_s_p"]) == float(cell["R_s_p"])  # the other electrode is not touched
+    # nothing at a bound, or bounds pulling both ways (k_n low wants λ > 1, R_f_n low wants λ < 1): no move
+    assert reduced.reseated(cell.with_values(k_n=7.5e-4), ["R_s_n"]) is None
+    assert reduced.reseated(cell.with_values(R_f_n=1.0e-5), ["R_s_n"]) is None
+
+
+@pytest.mark.slow
+def test_a_cumulative_fit_reaches_an_invariant_its_start_radius_put_beyond_a_bound(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The virtual truth's k_n sits at its lower bound with R_s_n 2.02e-5 (κ_n = k_n/R_s_n = 3.7): from the start
+    cell's R_s_n 1.09e-5 held, no k_n within bounds gives that κ_n, and the fit of the four put the missing kinetic
+    overpotential into the film (ρ_n 2.3 × its truth in the virtual loop). The cumulative fit fits the stage again
+    from a larger R_s_n on the orbit, and the three invariants' intervals hold their truths (synthetic data with
+    0.2 mV noise; measured κ_n 3.68 [3.65, 3.72], ρ_n 1.71e-9 [1.64e-9, 1.78e-9], cost 619); held at the start radius
+    they do not (κ_n 6.88 with k_n at its bound, ρ_n 5.04e-9 [4.97e-9, 5.11e-9], cost 5270)."""
+    from battlab.identify import cumulative
+    from battlab.noise import NoiseModel
+
+    start = battlab.Cell.load("nca18650")
+    names = tuple(symmetry.ORBITS["n"])
+    true = battlab.Cell.load("nca18650-true")
+    truth = start.with_values(**{n: float(true[n]) for n in names})
+    fm = ForwardModel(start)
+    lib = Library.build()
+    tester = NoiseModel(0.0, 0.0, 0.0, 0.0, floor=2e-4)  # 0.2 mV, as the virtual tester's
+    exps = [synthesize(fm, truth, lib[i], lib[i].soc0, seed=3 + i, noise=tester) for i in (19, 37)]
+    stages = [F.Stage(names, exps)]
+    settings = cumulative.FitSettings(max_evaluations=60)
+
+    def missed(res: F.FitResult) -> list[str]:
+        invs = {i.name: i for i in res.statistics.invariants}
+        out = []
+        for inv, powers in symmetry.INVARIANTS["n"].items():
+            true_value = float(np.prod([float(truth[n]) ** a for n, a in powers.items()]))
+            lo, hi = invs[inv].ci95
+            print(f"{inv}: {invs[inv].value:.4g} [{lo:.4g}, {hi:.4g}], truth {true_value:.4g}")
+            if not lo <= true_value <= hi:
+                out.append(inv)
+        return out
+
+    (res,) = cumulative.fit_cumulative(start, stages, settings, forward=fm)
+    assert res.extra.get("reseated", {}).get("R_s_n", 1.0) > 1.0
+    assert missed(res) == [] and float(res.cell["k_n"]) > 1.01 * P.SPECS["k_n"].lower
+    monkeypatch.setattr(cumulative, "RESEATS", 0)
+    (held,) = cumulative.fit_cumulative(start, stages, settings, forward=fm)
+    assert "kappa_n" in missed(held) and held.convergence.cost > res.convergence.cost
