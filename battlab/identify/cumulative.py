@@ -131,7 +131,7 @@ def fit_cumulative(
             res = run(start=current, soc_start=socs, ageing=ageing)
             tries = [res.convergence]
             for _ in range(RESEATS if held else 0):  # a bound the held R_s imposes: the same stage from another R_s
-                moved = reduced.reseated(res.cell, held)
+                moved = reduced.reseated(res.cell, held, {e.name: e.at_bound for e in res.statistics.estimates})
                 if moved is None:
                     break
                 if rep is not None:
@@ -141,15 +141,12 @@ def fit_cumulative(
                 tries.append(again.convergence)
                 if not again.convergence.cost < res.convergence.cost:
                     break
-                total = dict(res.extra.get("reseated", {}))  # the product of the moves: R_s / the held start value
-                again.extra["reseated"] = {r: total.get(r, 1.0) * m for r, m in moved[1].items()} | {
-                    r: m for r, m in total.items() if r not in moved[1]
-                }
+                before = res.extra.get("reseated", {})  # R_s over the held start value: the product of the moves
+                again.extra["reseated"] = {r: before.get(r, 1.0) * moved[1].get(r, 1.0) for r in {*before, *moved[1]}}
                 res = again
             if len(tries) > 1:  # the stage's cost is all its fits'
-                c = res.convergence
-                total = replace(c, iterations=sum(t.iterations for t in tries), seconds=sum(t.seconds for t in tries))
-                res = replace(res, convergence=total)
+                spent = {"iterations": sum(t.iterations for t in tries), "seconds": sum(t.seconds for t in tries)}
+                res = replace(res, convergence=replace(res.convergence, **spent))
             socs.update(res.extra.get("soc0", {}))
             ageing = _aged(ageing, res)
             if held:

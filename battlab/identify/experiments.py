@@ -281,6 +281,7 @@ def experiments_from_data(
     if not 200.0 < amb < 400.0:
         raise InputError(f"{where}: ambient {amb} K is not a temperature in kelvin (200–400 K)")
     surf = data.temperature_K(SURFACE)
+    delay = logged_sample_delay(data)
     out = []
     for n, sl in enumerate(segs, start=1):
         k0 = sl.start
@@ -305,7 +306,7 @@ def experiments_from_data(
                 T0,
                 temperature=T,
                 t_variance=t_var,
-                sample_delay=logged_sample_delay(data),
+                sample_delay=delay,
             )
         )
     return out

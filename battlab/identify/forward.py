@@ -154,7 +154,7 @@ class ForwardModel:
         sensitivities: Sequence[str],
         start: tuple[float, float] | None,
         capacity: float,
-        sample_delay: float = 0.0,
+        sample_delay: float,
     ) -> Output:
         names = check_sensitivities(self.cell, sensitivities)
         theta_bar = np.asarray(theta_bar, float)

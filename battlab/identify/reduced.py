@@ -73,8 +73,6 @@ def with_held(st: Statistics, held: Mapping[str, float]) -> Statistics:
     return replace(st, estimates=tuple(est), invariants=tuple(invs.values()), reason=reason)
 
 
-#: θ̄ this close to 0 or 1: a parameter at its bound
-AT_EDGE = 1e-3
 #: a move along the orbit smaller than this factor is not worth a refit
 MIN_MOVE = 1.05
 
@@ -91,8 +89,9 @@ def orbit_room(values: Mapping[str, float], electrode: str) -> tuple[float, floa
     return min(lo, 1.0), max(hi, 1.0)
 
 
-def reseated(cell: Any, held: Sequence[str]) -> tuple[Any, dict[str, float]] | None:
-    """``cell`` moved along the orbit of each held electrode whose D_s, k or R_f sits at a bound, halfway (in log λ)
+def reseated(cell: Any, held: Sequence[str], at_bound: Mapping[str, str | None]) -> tuple[Any, dict[str, float]] | None:
+    """``cell`` moved along the orbit of each held electrode whose D_s, k or R_f sits at a bound (``at_bound``: name
+    → ``"lower"``/``"upper"``, the fit's :class:`~battlab.identify.statistics.Estimate` verdicts), halfway (in log λ)
     to the farthest point in the direction that frees it where all four stay within their bounds; the moves {R_s: λ}.
     None when no electrode can move by :data:`MIN_MOVE` (nothing at a bound, bounds pulling both ways, no room)."""
     moves: dict[str, float] = {}
@@ -101,13 +100,10 @@ def reseated(cell: Any, held: Sequence[str]) -> tuple[Any, dict[str, float]] | N
         electrode = r.rsplit("_", 1)[1]
         orbit = symmetry.ORBITS[electrode]
         vals = {n: float(cell[n]) for n in orbit}
-        want = set()
-        for n, e in orbit.items():
-            th = float(cell.normalised(n))
-            if n == r or AT_EDGE < th < 1.0 - AT_EDGE:
-                continue
-            up = th >= 1.0 - AT_EDGE  # at its upper bound: λ^e must fall
-            want.add(-1 if up == (e > 0) else 1)
+        # at its upper bound λ^e must fall, at its lower bound rise
+        want = {
+            (-1 if at_bound[n] == "upper" else 1) * (1 if e > 0 else -1) for n, e in orbit.items() if at_bound.get(n)
+        }
         if len(want) != 1:
             continue
         lo, hi = orbit_room(vals, electrode)

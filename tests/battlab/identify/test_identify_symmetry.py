@@ -126,7 +126,7 @@ def test_an_electrode_held_at_a_bound_by_its_radius_moves_along_its_orbit_to_whe
     from battlab.identify import reduced
 
     cell = battlab.Cell.load("nca18650").with_values(R_s_n=1.0e-5, D_s_n=3.0e-14, k_n=7.5e-5, R_f_n=2.0e-4)
-    moved, moves = reduced.reseated(cell, ["R_s_n"])
+    moved, moves = reduced.reseated(cell, ["R_s_n"], {"k_n": "lower"})
     lo, hi = reduced.orbit_room({n: float(cell[n]) for n in symmetry.ORBITS["n"]}, "n")
     assert lo == pytest.approx(1.0) and moves == {"R_s_n": pytest.approx(hi**0.5)} and moves["R_s_n"] > reduced.MIN_MOVE
     before = {n: float(cell[n]) for n in symmetry.ORBITS["n"]}
@@ -139,8 +139,12 @@ def test_an_electrode_held_at_a_bound_by_its_radius_moves_along_its_orbit_to_whe
     assert after["k_n"] > 1.5 * P.SPECS["k_n"].lower
     assert float(moved["R_s_p"]) == float(cell["R_s_p"])  # the other electrode is not touched
     # nothing at a bound, or bounds pulling both ways (k_n low wants λ > 1, R_f_n low wants λ < 1): no move
-    assert reduced.reseated(cell.with_values(k_n=7.5e-4), ["R_s_n"]) is None
-    assert reduced.reseated(cell.with_values(R_f_n=1.0e-5), ["R_s_n"]) is None
+    assert reduced.reseated(cell.with_values(k_n=7.5e-4), ["R_s_n"], {"k_n": None}) is None
+    assert reduced.reseated(cell.with_values(R_f_n=1.0e-5), ["R_s_n"], {"k_n": "lower", "R_f_n": "lower"}) is None
+    # k_n at its upper bound moves the orbit down, as R_f_n at its lower bound does (a cell with room both ways)
+    free = cell.with_values(k_n=7.5e-4)
+    assert reduced.reseated(free, ["R_s_n"], {"k_n": "upper"})[1]["R_s_n"] < 1 / reduced.MIN_MOVE
+    assert reduced.reseated(free, ["R_s_n"], {"R_f_n": "lower"})[1]["R_s_n"] < 1 / reduced.MIN_MOVE
 
 
 @pytest.mark.slow
