@@ -380,13 +380,21 @@ class Cell:
     def static_hash(self) -> str:
         """The hash of every value except the identified parameters (which the compiled model takes as inputs),
         with the set of extensions that are on (they change the equations): cells that differ only in identified
-        values share one compiled model."""
-        dyn = set(parameters.NAMES)
-        data: dict[str, Any] = {k: to_json(v) for k, v in sorted(self.values.items()) if k not in dyn}
+        values share one model."""
+        return self._hash_without(set(parameters.NAMES))
+
+    def structure_hash(self) -> str:
+        """The hash of what the compiled model's code is made from: :meth:`static_hash` without the values it takes
+        as inputs (:data:`battlab.parameters.MODEL_INPUTS`) or never reads
+        (:data:`battlab.parameters.START_STATE_ONLY`), so an equilibrium fit's trial cells share one library."""
+        skip = set(parameters.NAMES) | set(parameters.MODEL_INPUTS) | set(parameters.START_STATE_ONLY)
+        return self._hash_without(skip)
+
+    def _hash_without(self, skip: set[str]) -> str:
+        data: dict[str, Any] = {k: to_json(v) for k, v in sorted(self.values.items()) if k not in skip}
         if self.extensions:
             data["extensions"] = list(self.extensions)
-        blob = json.dumps(data, sort_keys=True)
-        return hashlib.sha256(blob.encode()).hexdigest()
+        return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
 
     # --- equilibrium ----------------------------------------------------------------------------------
     def fn(self, key: str, x: Any, backend: str = "numpy") -> Any:

@@ -45,6 +45,14 @@ NAMES: tuple[str, ...] = tuple(SPECS)
 #: Table 4 / 11 equilibrium parameters (identified from the OCV test, not normalised).
 EQUILIBRIUM_TRUTH: dict[str, float] = {"eps_s_n": 0.5438895, "eps_s_p": 0.6663649, "n_Li": 0.1406}
 
+#: Values of a cell that the compiled model takes as inputs beside θ̄: the equilibrium fit moves them (the
+#: electrode moles through ε_s±, and the area A where they need more room), and cells that differ only in them
+#: share one compiled model instead of compiling one per trial point.
+MODEL_INPUTS: tuple[str, ...] = ("A", "eps_s_n", "eps_s_p")
+#: Values the model's equations never read (the start state is made from them in Python): the cyclable lithium
+#: and the stoichiometry window.
+START_STATE_ONLY: tuple[str, ...] = ("n_Li", "sto_n_0", "sto_n_100", "sto_p_0", "sto_p_100")
+
 
 #: The model extensions' parameters, by catalog key (the ``cause`` keys of ``battlab diagnose``), in catalog order.
 EXTENSIONS: dict[str, tuple[ExtensionParameter, ...]] = {c.key: c.parameters for c in extended()}

@@ -61,7 +61,7 @@ class CapacityFade(Extension):
         dphi = c.y[c.sl["phis_n"]] - c.phie[:n]
         tafel = ca.exp(-self.p(c, "alpha_side") * F / (R_GAS * c.T1) * (dphi - self.U_ref))
         f_n = c.y[c.sl[self.key]][0]
-        return -self.p(c, "I_side") / (float(c.cell["A"]) * c.L["n"]) * f_n * tafel
+        return -self.p(c, "I_side") / (c.value("A") * c.L["n"]) * f_n * tafel
 
     def surface_area(self, c: Evaluation, e: str, a: ca.SX) -> ca.SX:
         f = c.y[c.sl[self.key]]

@@ -37,6 +37,11 @@ class Evaluation(Protocol):
     nreg: dict[str, int]  # cells per region
     cell: Any  # the cell (values by key, functions by ``cell.fn``)
 
+    def value(self, key: str) -> Any:
+        """A cell value as the equations must read it: the model's input for :data:`battlab.parameters.MODEL_INPUTS`
+        (the compiled model serves every cell that differs only in them), the cell's number otherwise."""
+        ...
+
 
 class Mesh(Protocol):
     """What an extension's state counts depend on: cells per electrode."""

@@ -52,7 +52,7 @@ class Hysteresis(Extension):
         for e in ("n", "p"):
             h = self._h(c, e)
             i_vol = c.a_s[e] * c.i_int[e]
-            scale = 2.0 * F * float(c.cell[f"c_max_{e}"]) * float(c.cell[f"eps_s_{e}"])
+            scale = 2.0 * F * float(c.cell[f"c_max_{e}"]) * c.value(f"eps_s_{e}")
             out.append(self.p(c, f"gamma_{e}") * (i_vol - ca.fabs(i_vol) * h) / scale)
         return ca.vertcat(*out)
 

@@ -15,9 +15,10 @@ sensitivities; they are reported, not written into the cell.
 
 Method (a fixed point on the simulated overpotential). The model voltage is V = U⁺(θ⁺) − U⁻(θ⁻) + η with θ± the
 coulomb-counted mean stoichiometries (eqs. 13–15) and η the overpotential the DFN simulates for the logged current.
-A new ε_s needs a new compiled model (it is not one of the model's inputs), so η is held at the last simulated
-point while the moles move (their Jacobian is the OCV's, exact), the nuisances move with their exact sensitivities,
-and the DFN is simulated again at the result. At the fixed point the residual is the DFN's own; it converges in a
+The model gives no sensitivities w.r.t. ε_s± (they are inputs of the compiled model, not parameters of θ̄: every
+trial cell runs on one library), so η is held at the last simulated point while the moles move (their Jacobian
+is the OCV's, exact), the nuisances move with their exact sensitivities, and the DFN is simulated again at the
+result. At the fixed point the residual is the DFN's own; it converges in a
 few simulations because η depends weakly on the moles (measured below). Samples where the voltage is steep (the
 ends, |dV/dSOC| > ``slope_max``) or where a branch has just started are left out: there η depends most on what is
 not fitted, and a held η misplaces the knee when the moles move.
@@ -270,8 +271,8 @@ def fit_equilibrium_model(
         iters.append(Iteration(rmse, float(steps.max()), time.perf_counter() - t0))
         if callable(progress):
             progress(len(iters), rmse, float(steps.max()))
-        # the start stoichiometry and the nuisances move at every simulation (no new model needed); the moles and
-        # the lithium only when it is worth a new compiled model
+        # the start stoichiometry and the nuisances move at every simulation (the same cell); the moles and the
+        # lithium only when they move by a σ or more (a new cell)
         if steps.max() < tol_sigma:
             converged, message = True, f"converged: the last step moved no unknown by more than {steps.max():.2g} σ"
             break
@@ -279,7 +280,7 @@ def fit_equilibrium_model(
         z = sol.x * min(1.0, NUISANCE_STEP / max(float(np.max(np.abs(sol.x[4:]), initial=0.0)), 1e-300))
         th = np.clip(th + z[4:], 0.0, 1.0)
         x[3] += z[3] * scale[3]
-        if steps[:3].max() >= tol_sigma:  # a new compiled model only when the moles or the lithium move
+        if steps[:3].max() >= tol_sigma:  # a new cell only when the moles or the lithium move
             x[:3] += z[:3] * scale[:3]
             fm = None
     end = _simulate(fm, cell, x, th, nuis, prof, where, sensitivities=False)

@@ -36,6 +36,10 @@ class Context:
     tort_x: ca.SX  # transport efficiency per x cell
     T_ref: float = 298.15  # reference temperature [K]
     cell: Cell | None = None
+    #: the cell values the compiled model takes as inputs (:data:`battlab.parameters.MODEL_INPUTS`): symbols there,
+    #: the cell's numbers in a model built for one cell
+    inputs: dict[str, ca.SX | float] = field(default_factory=dict)
+    i_ref: ca.SX | float = 1.0  # 1C current density [A m⁻²]: the scale of the algebraic rows
     zero: ca.SX = field(default_factory=lambda: ca.SX(1, 1))
     a_s: dict[str, ca.SX] = field(default_factory=dict)  # specific surface area [m⁻¹]
     f_s: dict[str, ca.SX] = field(default_factory=dict)  # dθ/dt of the shells
@@ -56,6 +60,13 @@ class Context:
     Q: ca.SX | None = None  # heat [W]
     dT1: ca.SX | None = None
     dT2: ca.SX | None = None
+
+    def value(self, key: str) -> ca.SX | float:
+        """A cell value the equations read: the model's input where it is one, else the cell's number."""
+        if key in self.inputs:
+            return self.inputs[key]
+        assert self.cell is not None
+        return float(self.cell[key])
 
 
 @dataclass

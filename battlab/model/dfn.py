@@ -121,7 +121,6 @@ class DFN:
         self.layout = Layout(mesh, extra, extra_z)
         self.isothermal = isothermal
         self.T_ref = float(cell["T_ref"])
-        self.i_ref = float(cell["Q_nom"]) / float(cell["A"])  # 1C current density [A m⁻²]
         self.xi_f = mesh.radial_faces()
         self.xi_c = 0.5 * (self.xi_f[1:] + self.xi_f[:-1])
         self.vol = (self.xi_f[1:] ** 3 - self.xi_f[:-1] ** 3) / 3.0  # shell volumes / R³
@@ -153,6 +152,11 @@ class DFN:
     def n_theta(self) -> int:
         return len(self.options.parameter_names)
 
+    def input_values(self) -> np.ndarray:
+        """This cell's values of :data:`battlab.parameters.MODEL_INPUTS`, in order: the compiled model's input after
+        θ̄."""
+        return np.array([float(self.cell[k]) for k in parameters.MODEL_INPUTS])
+
     def physical(self, theta_bar: ca.SX) -> dict[str, ca.SX]:
         """θ from θ̄ (eq. 1) as symbolic expressions, keyed by :attr:`parameter_names`."""
         out = {}
@@ -168,13 +172,16 @@ class DFN:
         return out
 
     # --- the model ------------------------------------------------------------------------------------
-    def equations(self, y: ca.SX, I_dis: ca.SX, T_amb: ca.SX, theta_bar: ca.SX) -> dict[str, ca.SX]:
+    def equations(
+        self, y: ca.SX, I_dis: ca.SX, T_amb: ca.SX, theta_bar: ca.SX, inputs: ca.SX | None = None
+    ) -> dict[str, ca.SX]:
         """f (time derivatives of x), g (algebraic residuals, scaled), V and diagnostics at state y.
 
-        I_dis: cell current [A], positive = discharge. T_amb: ambient temperature [K]. The physics blocks below
+        I_dis: cell current [A], positive = discharge. T_amb: ambient temperature [K]. ``inputs``: symbols for the
+        values of :data:`battlab.parameters.MODEL_INPUTS` (None: the cell's numbers). The physics blocks below
         (as PyBaMM's submodels) each read the shared quantities of :class:`Context` and add their own.
         """
-        c = self.context(y, I_dis, T_amb, theta_bar)
+        c = self.context(y, I_dis, T_amb, theta_bar, inputs)
         self.solid_diffusion(c)
         for ext in self.options.extensions:
             for e in ("n", "p"):
@@ -204,10 +211,12 @@ class DFN:
             "ce": c.ce,
         }
 
-    def context(self, y: ca.SX, I_dis: ca.SX, T_amb: ca.SX, theta_bar: ca.SX) -> Context:
+    def context(self, y: ca.SX, I_dis: ca.SX, T_amb: ca.SX, theta_bar: ca.SX, inputs: ca.SX | None = None) -> Context:
         """The state split into its variables, the parameters and the geometry every block shares."""
         cell, m, sl = self.cell, self.mesh, self.layout.slices()
         p = self.physical(theta_bar)
+        keys = parameters.MODEL_INPUTS
+        given = {k: (inputs[j] if inputs is not None else float(cell[k])) for j, k in enumerate(keys)}
         L = {"n": float(cell["L_n"]), "s": float(cell["L_s"]), "p": float(cell["L_p"])}
         nreg = {"n": m.n_n, "s": m.n_s, "p": m.n_p}
         dx = np.concatenate([np.full(nreg[r], L[r] / nreg[r]) for r in ("n", "s", "p")])
@@ -228,7 +237,7 @@ class DFN:
             T_amb=T_amb,
             p=p,
             sl=sl,
-            i_app=I_cell / float(cell["A"]),
+            i_app=I_cell / given["A"],
             T1=self.T_ref + y[sl["T1"]],
             T2=self.T_ref + y[sl["T2"]],
             ce=y[sl["ce"]] * C_SCALE,
@@ -241,6 +250,8 @@ class DFN:
             tort_x=ca.vertcat(*[ca.repmat(transport(r), nreg[r], 1) for r in ("n", "s", "p")]),
             T_ref=self.T_ref,
             cell=cell,
+            inputs=given,
+            i_ref=float(cell["Q_nom"]) / given["A"],
         )
 
     def activation(self, c: Context, key: str) -> ca.SX | float:
@@ -269,7 +280,7 @@ class DFN:
             D = p[f"D_s_{e}"] * _arrhenius(self.activation(c, f"E_D_s_{e}"), self.T_ref, c.T1)
             cmax = float(cell[f"c_max_{e}"])
             ii = c.i_int[e]
-            c.a_s[e] = 3.0 * float(cell[f"eps_s_{e}"]) / R
+            c.a_s[e] = 3.0 * c.value(f"eps_s_{e}") / R
             for ext in self.options.extensions:
                 c.a_s[e] = ext.surface_area(c, e, c.a_s[e])
             dxi = np.diff(self.xi_c)
@@ -348,11 +359,11 @@ class DFN:
         if c.capacitive:  # charges the double layer: in the charge balance, not in the electrolyte's lithium
             zn, zp = ca.SX.zeros(c.nreg["n"]), ca.SX.zeros(c.nreg["p"])
             src = src + ca.vertcat(c.capacitive.get("n", zn), ca.SX.zeros(c.nreg["s"]), c.capacitive.get("p", zp))
-        c.g_e = ((ie_full[1:] - ie_full[:-1]) - src * c.dx) / self.i_ref
+        c.g_e = ((ie_full[1:] - ie_full[:-1]) - src * c.dx) / c.i_ref
         for e in ("n", "p"):
             phis = c.y[c.sl[f"phis_{e}"]]
             h = c.L[e] / c.nreg[e]
-            sig = p[f"sigma_{e}"] * float(cell[f"eps_s_{e}"]) ** float(cell[f"brugg_s_{e}"])
+            sig = p[f"sigma_{e}"] * c.value(f"eps_s_{e}") ** float(cell[f"brugg_s_{e}"])
             is_f = -sig * (phis[1:] - phis[:-1]) / h
             if e == "n":
                 left = -sig * (phis[0] - 0.0) / (h / 2.0)  # φ_s(0) = 0: the potential reference
@@ -363,7 +374,7 @@ class DFN:
                 c.phis_L = phis[-1] - (h / 2.0) * c.i_app / sig  # φ_s(L) from the collector's current
             is_full = ca.vertcat(left, is_f, right)
             reaction = a_s_i(c, e) + c.capacitive[e] if e in c.capacitive else a_s_i(c, e)
-            c.g_s[e] = ((is_full[1:] - is_full[:-1]) + reaction * h) / self.i_ref
+            c.g_s[e] = ((is_full[1:] - is_full[:-1]) + reaction * h) / c.i_ref
 
     def kinetics(self, c: Context) -> None:
         """A17–A20: Butler–Volmer with α_a = α_c = 0.5 and the film resistance; sets g_bv, and the potentials at
@@ -381,7 +392,7 @@ class DFN:
             for ext in self.options.extensions:
                 U = ext.open_circuit(c, e, U)
             eta = c.y[c.sl[f"phis_{e}"]] - c.phie[off[e] : off[e] + nxe] - U - p[f"R_f_{e}"] * c.i_int[e]
-            c.g_bv[e] = (c.i_int[e] - 2.0 * i0 * ca.sinh(F * eta / (2.0 * R_GAS * c.T1))) / self.i_ref
+            c.g_bv[e] = (c.i_int[e] - 2.0 * i0 * ca.sinh(F * eta / (2.0 * R_GAS * c.T1))) / c.i_ref
             c.U[e] = U
             # B3-B4: the potentials at the electrode's mean bulk stoichiometry (one evaluation per electrode)
             sign = 1.0 if e == "p" else -1.0

@@ -3,10 +3,12 @@ Newton, a static-pivot sparse LU and the sensitivity solves, and gcc turns both 
 
 Build once per (cell, mesh, option set: thermal option and extensions), cached on disk under ``$BATTLAB_CACHE`` (default
 ``~/.cache/battlab``) by a hash of the generated source, so a fit that changes θ̄ never recompiles (θ̄ is an input) and
-cells whose differences do not reach the equations share one library. A small index file maps what the source is made
-from (the cell's values except θ̄, mesh, options, the model's source files, CasADi's version, compiler flags,
-processor) to that library, so a process that meets a known model loads it without generating the code again: what
-Python needs of the functions (sparsity, a Jacobian for the pivot order) comes from the library itself.
+cells whose differences do not reach the equations share one library; the values an equilibrium fit moves (the
+electrode moles through ε_s±, the area: :data:`battlab.parameters.MODEL_INPUTS`) are inputs too, passed after θ̄. A
+small index file maps what the source is made from (the cell's values except θ̄ and those inputs, mesh, options, the
+model's source files, CasADi's version, compiler flags, processor) to that library, so a process that meets a known
+model loads it without generating the code again: what Python needs of the functions (sparsity, a Jacobian for the
+pivot order) comes from the library itself.
 
 The LU program: the pivot order comes from SuperLU (COLAMD columns, partial pivoting) on the Jacobian at a
 representative state; the fill pattern of that order is computed symbolically, and the numeric factorisation
@@ -38,6 +40,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
+from battlab import parameters
 from battlab.model.dfn import DFN
 from battlab.model.plans import AdaptiveControl, SamplePlan, StepPlan
 from battlab.model.state import guess_algebraic, initial_state
@@ -158,8 +161,9 @@ def _functions(model: DFN) -> list[ca.Function]:
     xp = ca.SX.sym("xp", nx)
     u = ca.SX.sym("u", 4)
     th = ca.SX.sym("th", model.n_theta)
+    given = ca.SX.sym("inputs", len(parameters.MODEL_INPUTS))  # the cell values the model takes as inputs
     h, w = u[0], u[1]
-    eq = model.equations(y, u[2], u[3], th)
+    eq = model.equations(y, u[2], u[3], th, given)
     gamma = (1 + w) / (1 + 2 * w)
     psi = (1 + w) ** 2 / (1 + 2 * w) * xn - w**2 / (1 + 2 * w) * xp
     R = ca.vertcat(y[:nx] - psi - gamma * h * eq["f"], eq["g"])
@@ -168,13 +172,15 @@ def _functions(model: DFN) -> list[ca.Function]:
     sto = eq["sto_surf"]
     o = ca.vertcat(eq["V"], eq["T1"], eq["T2"], ca.mmin(sto), ca.mmax(sto))
     cse = {"cse": True}  # common subexpressions once: the Jacobians' code a third smaller, faster to build and run
+    # the C functions' "th" is θ̄ followed by the inputs (the stepper passes it through; derivatives are θ̄'s only)
+    th_in = ca.vertcat(th, given)
     fs = [
-        ca.Function("bl_res", [y, xn, xp, u, th], [R], cse),
-        ca.Function("bl_jac", [y, xn, xp, u, th], [Jy, Jth], cse),
-        ca.Function("bl_g", [y, u, th], [eq["g"]], cse),
-        ca.Function("bl_out", [y, u, th], [o], cse),
+        ca.Function("bl_res", [y, xn, xp, u, th_in], [R], cse),
+        ca.Function("bl_jac", [y, xn, xp, u, th_in], [Jy, Jth], cse),
+        ca.Function("bl_g", [y, u, th_in], [eq["g"]], cse),
+        ca.Function("bl_out", [y, u, th_in], [o], cse),
         ca.Function(
-            "bl_outj", [y, u, th], [ca.densify(ca.jacobian(eq["V"], y)), ca.densify(ca.jacobian(eq["V"], th))], cse
+            "bl_outj", [y, u, th_in], [ca.densify(ca.jacobian(eq["V"], y)), ca.densify(ca.jacobian(eq["V"], th))], cse
         ),
     ]
     return fs
@@ -327,6 +333,11 @@ class NativeStepper:
         self._jth = tuple(np.ascontiguousarray(a, dtype=np.int32) for a in (pat.jth.colind(), pat.jth.row()))
         self._base: OrderedDict[bytes, PivotSet] = OrderedDict()
         self._lock = threading.Lock()
+        self._inputs = model.input_values()
+
+    def _with_inputs(self, th: np.ndarray) -> np.ndarray:
+        """θ̄ followed by this cell's values of the model's inputs: what the C functions take as ``th``."""
+        return np.ascontiguousarray(np.concatenate([np.asarray(th, np.float64), self._inputs]))
 
     def profile(self) -> dict[str, tuple[int, float]] | None:
         """Calls and CPU cycles per kind of work since the last call (a ``BATTLAB_PROFILE_STEPPER`` build), else
@@ -352,11 +363,11 @@ class NativeStepper:
     # --- LU analysis ---
     def outputs(self, y: np.ndarray, current: float, T_amb: float, th: np.ndarray) -> np.ndarray:
         """[V, T1, T2, sto_min, sto_max] at state ``y`` with ``current`` [A, + = discharge] and ``T_amb`` [K]."""
-        return _call(self.lib, "bl_out", [y, np.array([0.0, 0.0, current, T_amb]), th])[0]
+        return _call(self.lib, "bl_out", [y, np.array([0.0, 0.0, current, T_amb]), self._with_inputs(th)])[0]
 
     def jacobian(self, y: np.ndarray, xn: np.ndarray, xp: np.ndarray, u: np.ndarray, th: np.ndarray) -> np.ndarray:
         """The nonzeros of the step Jacobian dR/dy (CCS, ``patterns.jac``) at a state, u = [h, ω, I_dis, T_amb]."""
-        return _call(self.lib, "bl_jac", [y, xn, xp, u, th])[0]
+        return _call(self.lib, "bl_jac", [y, xn, xp, u, self._with_inputs(th)])[0]
 
     def analyse_at(self, y: np.ndarray, xn: np.ndarray, xp: np.ndarray, u: np.ndarray, th: np.ndarray) -> Pivots:
         """A pivot program for the step Jacobian at a state (when the one in use meets a vanishing pivot)."""
@@ -460,7 +471,7 @@ class NativeStepper:
         ``samples.next`` broke a limit, -1 Newton failed, -2 a pivot of ``pivots.step`` vanished, -5 one of
         ``pivots.zero`` (the state is then that before the failed step), -4 no right-limit solution."""
         ns = len(sel)
-        th, sel, limits = _f64(th), np.ascontiguousarray(sel, dtype=np.int32), _f64(limits)
+        th, sel, limits = self._with_inputs(th), np.ascontiguousarray(sel, dtype=np.int32), _f64(limits)
         ints = np.array([samples.next, 0, 0], dtype=np.int32)  # next sample (in/out), code, Newton iterations
         Sy = np.zeros(self.model.layout.ny * max(ns, 1))
         dense = samples.yhist is not None
@@ -518,7 +529,7 @@ class NativeStepper:
         restart, t_end its end), recording the accepted steps in ``control``; returns (segments done, code,
         Newton iterations) with the codes of :meth:`run` and -6 (``control``'s plan is full: grow it, call again)."""
         ns = len(sel)
-        th, sel, limits = _f64(th), np.ascontiguousarray(sel, dtype=np.int32), _f64(limits)
+        th, sel, limits = self._with_inputs(th), np.ascontiguousarray(sel, dtype=np.int32), _f64(limits)
         ints = np.array([samples.next, 0, 0, control.n], dtype=np.int32)  # next sample, code, iterations, steps
         Sy = np.zeros(self.model.layout.ny * max(ns, 1))
         a = _addr(ints)
@@ -597,11 +608,12 @@ def _call(lib: ctypes.CDLL, name: str, inputs: list[np.ndarray]) -> list[np.ndar
 
 
 def _fingerprint(model: DFN) -> str:
-    """What the library is built from: the cell's values except θ̄ (and which extensions are on), the mesh, the
-    option set, the source of the model and its code generation, CasADi's version, compiler flags, processor."""
+    """What the library is built from: the cell's values except θ̄ and the model's other inputs (and which extensions
+    are on), the mesh, the option set, the source of the model and its code generation, CasADi's version, compiler
+    flags, processor."""
     h = hashlib.sha256()
     for part in (
-        model.cell.static_hash(),
+        model.cell.structure_hash(),
         repr(model.mesh),
         repr(model.options),
         ca.__version__,

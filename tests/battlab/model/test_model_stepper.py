@@ -90,12 +90,13 @@ def test_lu_program_solves_the_step_jacobian_at_another_state(cell: battlab.Cell
     jac = {f.name(): f for f in native._functions(model)}["bl_jac"]
     jsp = jac.sparsity_out(0)
     th = np.array([cell.normalised(n) for n in parameters.NAMES])
+    th_in = np.r_[th, model.input_values()]  # the C functions take θ̄ and then the cell's model inputs
     x0 = solver.initial_state(model, 0.5, th, 298.15)
     y = np.concatenate([x0, solver.guess_algebraic(model, x0, 2.7)])
-    prog = native.analyse(jsp, np.array(jac(y, x0, x0, [1.0, 0.0, 2.7, 298.15], th)[0].nonzeros()))
+    prog = native.analyse(jsp, np.array(jac(y, x0, x0, [1.0, 0.0, 2.7, 298.15], th_in)[0].nonzeros()))
     x1 = solver.initial_state(model, 0.2, th, 310.0)
     y1 = np.concatenate([x1, solver.guess_algebraic(model, x1, -5.0)])
-    jnz = np.array(jac(y1, x1, x1, [0.3, 1.5, -5.0, 310.0], th)[0].nonzeros())
+    jnz = np.array(jac(y1, x1, x1, [0.3, 1.5, -5.0, 310.0], th_in)[0].nonzeros())
     A = sp.csc_matrix((jnz, np.array(jsp.row()), np.array(jsp.colind())), shape=(jsp.size1(), jsp.size1()))
     b = np.random.default_rng(1).standard_normal(jsp.size1())
     x = _replay(prog, jnz, b)
@@ -143,6 +144,36 @@ def test_cells_differing_in_identified_parameters_share_the_compiled_model(cell:
     assert other.static_hash() == cell.static_hash() and other.hash() != cell.hash()
     assert solver.native_stepper(cell, Mesh(), False) is solver.native_stepper(other, Mesh(), False)
     assert cell.with_values(L_n=8e-5).static_hash() != cell.static_hash()
+
+
+@pytest.mark.slow
+def test_cells_differing_in_electrode_moles_and_area_share_the_library_and_keep_their_own_values(
+    cell: battlab.Cell,
+) -> None:
+    """The equilibrium fit moves ε_s± and the area (and with them n_Li and the stoichiometry window): the compiled
+    model takes those as inputs, so its trial cells load one library instead of compiling one each, and each runs
+    with its own values: the same voltage, temperature and sensitivities as the CasADi stepper, which builds its
+    functions with the cell's numbers in them."""
+    from battlab.identify.ocv_model import cell_with_moles
+
+    moved = cell_with_moles(
+        cell, 1.03 * cell.electrode_moles("n"), 0.97 * cell.electrode_moles("p"), 1.01 * cell.lithium_moles()
+    )
+    moved = moved.with_values(A=1.1 * float(moved["A"]))
+    assert moved.structure_hash() == cell.structure_hash() and moved.static_hash() != cell.static_hash()
+    first, second = solver.native_stepper(cell, Mesh(), False), solver.native_stepper(moved, Mesh(), False)
+    assert first is not second and first.lib._name == second.lib._name  # one library, two cells
+    assert cell.with_values(L_n=8e-5).structure_hash() != cell.structure_hash()
+    prof = _pulses()
+    names = ["eps_e_n", "D_s_p", "k_n"]
+    fixed = solver.Settings(adaptive=False)
+    a = battlab.simulate(moved, prof, soc0=0.6, sensitivities=names, backend="native", settings=fixed)
+    b = battlab.simulate(moved, prof, soc0=0.6, sensitivities=names, backend="casadi", settings=fixed)
+    base = battlab.simulate(cell, prof, soc0=0.6, backend="native", settings=fixed)
+    assert np.abs(base.voltage - a.voltage).max() > 1e-3  # the values reach the equations
+    np.testing.assert_allclose(a.voltage, b.voltage, atol=1e-9)
+    np.testing.assert_allclose(a.T_surface, b.T_surface, atol=1e-9)
+    np.testing.assert_allclose(a.sensitivities, b.sensitivities, atol=1e-7)
 
 
 def test_a_failing_compiler_is_named_and_the_library_never_half_written(
