@@ -12,15 +12,15 @@ electrolyte that empties early, a diffusivity at its bound). With ``per-file age
 * ``capacity`` c [1]: the fraction of the electrode stack still active (loss of active material of both electrodes
   with the lithium it holds), a factor on the electrode area A and so on both H± = ε_s L A c_max (eq. 11). An area
   factor leaves every current density of the aged cell equal to that of the reference cell at the current I/c, so
-  the compiled model (whose A is a build constant) runs at I/c; the contact resistance's drop, which does not scale
-  with area, is corrected to R_c I (:meth:`battlab.identify.forward.ForwardModel.run`). The heat of that run is the
-  reference cell's at I/c, 1/c times the aged cell's (the temperature rise is overestimated by up to 1/c − 1; a
-  factor on ε_s instead would change the compiled model, 10–30 s per value). Bounds :data:`CAPACITY_BOUNDS`.
+  the reference cell's model runs at I/c; the contact resistance's drop, which does not scale with area, is
+  corrected to R_c I (:meth:`battlab.identify.forward.ForwardModel.run`). The heat of that run is the reference
+  cell's at I/c, 1/c times the aged cell's (the temperature rise is overestimated by up to 1/c − 1; a cell per file
+  with its own area, an input of the compiled model, would not be). Bounds :data:`CAPACITY_BOUNDS`.
 
-Both are fitted with the shared parameters (one-sided finite-difference Jacobian columns, as the start-SOC
-nuisance); their values and 95 % intervals are reported per file. The exported cell (one cell) holds the mean of
-the per-file values over the dynamic data files (:func:`aged_cell`): one cell for every date of the campaign, each
-file's own state kept in the fit's summary and the BPX user-defined metadata.
+Both are fitted with the shared parameters (one-sided finite-difference Jacobian columns, as the start SOC where a
+file's lithium fixes its start stoichiometries); their values and 95 % intervals are reported per file. The exported
+cell (one cell) holds the mean of the per-file values over the dynamic data files (:func:`aged_cell`): one cell for
+every date of the campaign, each file's own state kept in the fit's summary and the BPX user-defined metadata.
 """
 
 from __future__ import annotations

@@ -229,7 +229,7 @@ def fit(
     returns its best point with ``convergence.converged = False`` and the reason.
 
     ``ageing`` (:mod:`battlab.identify.ageing`): each data file of the experiments gets its own n_Li and/or
-    capacity, fitted with ``names`` (finite-difference columns, as the start SOCs); ``names``' statistics are
+    capacity, fitted with ``names`` (finite-difference columns); ``names``' statistics are
     marginal over them, and ``extra["ageing"]`` holds each file's values with 95 % intervals (from the covariance of
     all parameters). The fitted cell stays at the start cell's ageing state (the per-file values are relative to it).
 

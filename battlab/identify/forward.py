@@ -13,7 +13,7 @@ Without a C compiler it falls back to ``battlab.simulate``.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -41,6 +41,10 @@ class Output:
     T_surface: np.ndarray | None = None
     T_core: np.ndarray | None = None
     dT: np.ndarray | None = None  # dT_surface/dθ̄ (n, n_sens) [K]
+    #: dV/d(start SOC) [V] and dT_surface/d(start SOC) [K] (n,): asked for with ``soc_sensitivity`` and given where
+    #: the compiled stepper runs from a state at a SOC (None otherwise: the caller differences)
+    dsoc: np.ndarray | None = None
+    dsoc_T: np.ndarray | None = None
 
 
 class ForwardModel:
@@ -109,8 +113,12 @@ class ForwardModel:
         start: tuple[float, float] | None = None,
         capacity: float = 1.0,
         sample_delay: float = 0.0,
+        soc_sensitivity: bool = False,
     ) -> Output:
         """Voltage and dV/dθ̄ for the named parameters under ``profile`` from rest at ``soc0``.
+
+        ``soc_sensitivity``: also dV/d(soc0) (``Output.dsoc``, exact: one more direction of the same sensitivity
+        solves) where the compiled stepper runs and ``start`` is not given.
 
         ``sample_delay`` [s]: each sample's current took effect this long before its time stamp (the tester's
         set-to-sample delay, :class:`battlab.model.state.Settings` ``current_lead``).
@@ -118,7 +126,9 @@ class ForwardModel:
         Per-file ageing (:mod:`battlab.identify.ageing`): ``start`` (θ⁻, θ⁺) replaces the stoichiometries at
         ``soc0``; ``capacity`` c scales the electrode area: the model runs at the current I/c (the same current
         densities) and the contact resistance's drop is corrected from R_c I/c to R_c I."""
-        out = self._run(theta_bar, profile, soc0, ambient, T0, sensitivities, start, capacity, sample_delay)
+        out = self._run(
+            theta_bar, profile, soc0, ambient, T0, sensitivities, start, capacity, sample_delay, soc_sensitivity
+        )
         return out if capacity == 1.0 else self._contact_corrected(out, theta_bar, profile, capacity, sensitivities)
 
     def _contact_corrected(
@@ -142,7 +152,7 @@ class ForwardModel:
             for spec, factor in ((spec_r, 1.0), (spec_t, dT)):
                 if dV is not None and spec.qualified in names:
                     dV[:, names.index(spec.qualified)] += i_dis * factor * (spec.upper - spec.lower)
-        return Output(out.voltage + r * i_dis, dV, out.ended_by, out.T_surface, out.T_core, out.dT)
+        return replace(out, voltage=out.voltage + r * i_dis, sensitivities=dV)
 
     def _run(
         self,
@@ -155,6 +165,7 @@ class ForwardModel:
         start: tuple[float, float] | None,
         capacity: float,
         sample_delay: float,
+        soc_sensitivity: bool = False,
     ) -> Output:
         names = check_sensitivities(self.cell, sensitivities)
         theta_bar = np.asarray(theta_bar, float)
@@ -188,6 +199,9 @@ class ForwardModel:
         m = self.v_margin
         limits = {"V_min": float(cell["V_min"]) - m, "V_max": float(cell["V_max"]) + m, "T_max": float(cell["T_max"])}
         sel = [self.names.index(n) for n in names]
+        with_soc = soc_sensitivity and start is None
+        if with_soc:
+            sel.append(solver.START_SOC)
         t = profile.t - profile.t[0]
         traj = solver.run_native(
             stepper,
@@ -202,6 +216,18 @@ class ForwardModel:
             limits,
             start,
         )
+        dV, dT = traj.dV, traj.dT2
+        if not with_soc:
+            return Output(traj.voltage, dV if names else None, traj.ended_by, traj.T2, traj.T1, dT if names else None)
+        assert dV is not None and dT is not None
+        k = len(names)
         return Output(
-            traj.voltage, traj.dV if names else None, traj.ended_by, traj.T2, traj.T1, traj.dT2 if names else None
+            traj.voltage,
+            dV[:, :k] if names else None,
+            traj.ended_by,
+            traj.T2,
+            traj.T1,
+            dT[:, :k] if names else None,
+            dV[:, k].copy(),
+            dT[:, k].copy(),
         )

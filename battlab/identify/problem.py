@@ -1,5 +1,7 @@
 """The weighted least-squares problem of eq. 41: residuals r = (ŷ − y)/√Q and their Jacobian from the model's exact
-sensitivities, with one-sided difference columns for the nuisances (start SOCs, per-file ageing), cached per θ̄.
+sensitivities, the start SOCs' columns included (a direction of the start state in the same solves), with one-sided
+difference columns for per-file ageing (and for the start SOC where a file's lithium fixes the start stoichiometries
+or the CasADi fallback runs), cached per θ̄.
 A simulation that stops early at a voltage limit holds its last voltage for the missing samples (zero Jacobian rows).
 """
 
@@ -105,18 +107,22 @@ class Problem:
         p = len(self.names)
         soc0 = self.soc_of(i, x)
         use_T = self.temperature and e.has_temperature
-        pred, S, predT, ST = self._run(th, i, soc0, True, x, use_T)
+        pred, S, predT, ST, dsoc = self._run(th, i, soc0, True, x, use_T, soc_column=self.n_nuis > 0)
         w = 1.0 / np.sqrt(e.variance)
         m = e.mask
         cols, colsT = [S], [ST]
 
         def fd(soc: float, xh: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray | None]:
-            p2, _, p2T, _ = self._run(th, i, soc, False, xh, use_T)
+            p2, _, p2T, _, _ = self._run(th, i, soc, False, xh, use_T)
             return (p2 - pred) / h, None if p2T is None or predT is None else (p2T - predT) / h
 
-        if self.n_nuis:  # dV/du by a one-sided difference (the start SOC has no exact sensitivity)
-            h = 1e-3 if x[p + i] < 0.5 else -1e-3
-            dv, dT = fd(soc0 + 2 * self.soc_span * h, x, h)
+        if self.n_nuis:  # dV/du: exact where the model gives it (u moves the SOC by 2 soc_span per unit), else
+            # a one-sided difference
+            if dsoc is not None:
+                dv, dT = 2 * self.soc_span * dsoc[0], None if dsoc[1] is None else 2 * self.soc_span * dsoc[1]
+            else:
+                h = 1e-3 if x[p + i] < 0.5 else -1e-3
+                dv, dT = fd(soc0 + 2 * self.soc_span * h, x, h)
             col, colT = np.zeros((e.voltage.size, self.n_nuis)), np.zeros((e.voltage.size, self.n_nuis))
             col[:, i] = dv
             if dT is not None:
@@ -183,10 +189,24 @@ class Problem:
         return float(np.clip(e.soc0 + 2 * self.soc_span * (x[len(self.names) + i] - 0.5), 0.0, 1.0))
 
     def _run(
-        self, th: np.ndarray, i: int, soc0: float, sens: bool, x: np.ndarray, temperature: bool = False
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """Voltage prediction and sensitivities of experiment i at θ (full) with the ageing values of x, and (with
-        ``temperature``) the surface temperature's [K] and its sensitivities."""
+        self,
+        th: np.ndarray,
+        i: int,
+        soc0: float,
+        sens: bool,
+        x: np.ndarray,
+        temperature: bool = False,
+        soc_column: bool = False,
+    ) -> tuple[
+        np.ndarray,
+        np.ndarray,
+        np.ndarray | None,
+        np.ndarray | None,
+        tuple[np.ndarray, np.ndarray | None] | None,
+    ]:
+        """Voltage prediction and sensitivities of experiment i at θ (full) with the ageing values of x, (with
+        ``temperature``) the surface temperature's [K] and its sensitivities, and (with ``soc_column``, where the
+        model gives them exactly) dV/d(start SOC) and dT/d(start SOC) (None otherwise)."""
         e = self.exps[i]
         n = e.voltage.size
         start, capacity = None, 1.0
@@ -202,7 +222,7 @@ class Problem:
                     if temperature
                     else (None, None)
                 )
-                return np.full(n, e.voltage[0] + 1.0), np.zeros((n, len(self.names))), *zT
+                return np.full(n, e.voltage[0] + 1.0), np.zeros((n, len(self.names))), *zT, None
         out = self.fm.run(
             th,
             e.profile,
@@ -213,6 +233,7 @@ class Problem:
             start=start,
             capacity=capacity,
             sample_delay=e.sample_delay,
+            soc_sensitivity=soc_column,
         )
         pred = np.empty(n)
         S = np.zeros((n, len(self.names)))
@@ -224,8 +245,14 @@ class Problem:
             pred[k:] = out.voltage[-1]
         else:
             pred[:] = e.voltage[0] + 1.0  # nothing simulated: a large but finite residual
+        dsoc = None
+        if out.dsoc is not None:  # rows after an early end are held values: zero, as the θ̄ columns'
+            dsoc = (np.zeros(n), None if out.dsoc_T is None or not temperature else np.zeros(n))
+            dsoc[0][:k] = out.dsoc
+            if dsoc[1] is not None and out.dsoc_T is not None:
+                dsoc[1][:k] = out.dsoc_T
         if not temperature:
-            return pred, S, None, None
+            return pred, S, None, None, dsoc
         predT = np.full(n, float(e.ambient) + 50.0)  # nothing simulated: a large but finite residual
         ST = np.zeros((n, len(self.names)))
         if k and out.T_surface is not None:
@@ -233,7 +260,7 @@ class Problem:
             predT[k:] = out.T_surface[-1]
             if sens and out.dT is not None:
                 ST[:k] = out.dT
-        return pred, S, predT, ST
+        return pred, S, predT, ST, dsoc
 
 
 def rmse_mV(exps: Sequence[Experiment], preds: list[np.ndarray]) -> dict[str, float]:

@@ -123,6 +123,23 @@ def _failure(
     return what
 
 
+#: ``sel`` entry of :func:`run_native` for dV/d(start SOC): a direction of the start state alone (the stepper adds
+#: no dR/dθ̄ term for it)
+START_SOC = -1
+
+
+def _start_soc_direction(
+    model: DFN, soc0: float, th: np.ndarray, T0: float, sto0: tuple[float, float] | None
+) -> np.ndarray:
+    """dx₀/d(SOC) of the rest state (eq. 20: the stoichiometries are linear in the SOC; a central difference is
+    exact for them and covers an extension's start states)."""
+    if sto0 is not None:
+        raise ValueError("a start-SOC sensitivity needs the start state at a SOC, not given stoichiometries")
+    h = 1e-4
+    lo, hi = max(0.0, soc0 - h), min(1.0, soc0 + h)
+    return (initial_state(model, hi, th, T0) - initial_state(model, lo, th, T0)) / (hi - lo)
+
+
 def run_native(
     stepper,
     t: np.ndarray,
@@ -137,7 +154,9 @@ def run_native(
     sto0: tuple[float, float] | None = None,
 ) -> Trajectory:
     """As :func:`run`, on the compiled stepper: one C call for the whole profile (plus retries). ``sto0``: the start
-    stoichiometries (θ⁻, θ⁺) instead of the cell's at ``soc0`` (a cell whose lithium differs from its window's)."""
+    stoichiometries (θ⁻, θ⁺) instead of the cell's at ``soc0`` (a cell whose lithium differs from its window's).
+    ``sel``: the θ̄ indices of the sensitivities, :data:`START_SOC` for dV/d(soc0) (the rest state's direction,
+    exact as the others)."""
     t_start = time.perf_counter()
     model = stepper.model
     lay = model.layout
@@ -180,6 +199,8 @@ def run_native(
         for j, s in enumerate(sel):
             if s == k_ce:
                 S[lay.slices()["ce"], j] = (spec.upper - spec.lower) / C_SCALE
+            elif s == START_SOC:
+                S[:, j] = _start_soc_direction(model, soc0, th, T0, sto0)
     Sp = S.copy()
     lim = np.array([limits["V_min"], limits["V_max"], limits["T_max"]])
     pivots = stepper.base_pivots(th)

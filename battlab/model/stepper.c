@@ -304,7 +304,8 @@ static int newton(const System *s, double *y, double *lu, int *have_lu, double *
   return -1;
 }
 
-/* Sensitivities of a converged step into Sy (n x ns, row-major, Sy[i*ns + j] = dy_i/dth_sel[j]):
+/* Sensitivities of a converged step into Sy (n x ns, row-major, Sy[i*ns + j] = dy_i/dth_sel[j]; sel[j] < 0: a
+ * direction of the start state alone, whose initial sensitivities the caller sets, with no dR/dth term):
  * J Sy = -(alpha SN + beta SP on the x rows + dR/dth[:, sel]); SN, SP: the full sensitivities of the step's start
  * and of the one before (their x rows are read). C: work [n*ns]. */
 static int sens_step(const Problem *P, const double *y, const double *xn, const double *xp, const double *u,
@@ -322,6 +323,7 @@ static int sens_step(const Problem *P, const double *y, const double *xn, const 
   memset(Sy + (size_t)nx * ns, 0, sizeof(double) * (size_t)(n - nx) * ns);
   for (j = 0; j < ns; ++j) {
     int col = sel[j];
+    if (col < 0) continue; /* a direction of the start state alone (the start SOC): no dR/dth term */
     for (i = P->jth_colptr[col]; i < P->jth_colptr[col + 1]; ++i) Sy[(size_t)P->jth_row[i] * ns + j] -= jth[i];
   }
   lu_solve_multi(P, lu, Sy, C, ns);
@@ -354,6 +356,7 @@ static int sens_zero(const Problem *P0, const double *y, const double *xp, const
   }
   for (j = 0; j < ns; ++j) {
     col = sel[j];
+    if (col < 0) continue;
     for (k = P0->jth_colptr[col]; k < P0->jth_colptr[col + 1]; ++k) B[(size_t)P0->jth_row[k] * ns + j] -= gth[k];
   }
   lu_solve_multi(P0, lu0, B, C, ns);
@@ -366,7 +369,7 @@ static void output(const Problem *P, const double *y, const double *u, const dou
   call(bl_out, PR_OUT, y, u, th, 0, 0, o, 0, 0);
   if (ns) {
     call(bl_outj, PR_OUTJ, y, u, th, 0, 0, vy, vth, 0);
-    for (int j = 0; j < ns; ++j) dV[j] = vth[sel[j]];
+    for (int j = 0; j < ns; ++j) dV[j] = sel[j] < 0 ? 0.0 : vth[sel[j]];
     for (int i = 0; i < P->n; ++i) {
       double v = vy[i];
       if (v != 0.0)

@@ -246,6 +246,27 @@ def test_groupwise_fit_is_cumulative(setup) -> None:
     assert all(res[1].statistics[n].covers(P.SPECS[n].truth) for n in NAMES)
 
 
+def test_the_start_soc_sensitivity_is_the_derivative_of_the_run(setup) -> None:
+    """dV/d(soc0) and dT/d(soc0) come from the same sensitivity solves as dV/dθ̄ (a direction of the start state):
+    equal to central differences of the forward model on its own steps, with a set-to-sample delay, beside θ̄'s
+    columns, which they leave as they were."""
+    cell, truth, fm, profs, _ = setup
+    th, p = fm.theta_of(truth), profs[1]
+    out = fm.run(th, p, 0.6, sensitivities=["D_s_p"], sample_delay=0.01, soc_sensitivity=True)
+    alone = fm.run(th, p, 0.6, sensitivities=["D_s_p"], sample_delay=0.01)
+    assert out.dsoc is not None and out.dsoc_T is not None and alone.dsoc is None
+    np.testing.assert_array_equal(out.sensitivities, alone.sensitivities)
+    h = 1e-5
+    up, down = (fm.run(th, p, 0.6 + d, sample_delay=0.01) for d in (h, -h))
+    fd = (up.voltage - down.voltage) / (2 * h)
+    assert np.abs(fd).max() > 0.1  # [V per unit SOC]: the OCV's slope at least
+    np.testing.assert_allclose(out.dsoc, fd, atol=1e-5 * np.abs(fd).max())
+    fd_T = (up.T_surface - down.T_surface) / (2 * h)
+    np.testing.assert_allclose(out.dsoc_T, fd_T, atol=1e-5 * max(np.abs(fd_T).max(), 1e-3))
+    # given start stoichiometries fix the start: no SOC direction (the caller differences)
+    assert fm.run(th, p, 0.6, start=(0.5, 0.5), soc_sensitivity=True).dsoc is None
+
+
 def test_start_soc_nuisance_is_fitted_and_marginalised(setup) -> None:
     cell, truth, fm, profs, clean = setup
     exps = [synthesize(fm, truth, p, p.soc0, seed=11 + k, clean=clean[p.id]) for k, p in enumerate(profs)]
