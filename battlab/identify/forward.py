@@ -216,18 +216,7 @@ class ForwardModel:
             limits,
             start,
         )
-        dV, dT = traj.dV, traj.dT2
-        if not with_soc:
-            return Output(traj.voltage, dV if names else None, traj.ended_by, traj.T2, traj.T1, dT if names else None)
-        assert dV is not None and dT is not None
-        k = len(names)
-        return Output(
-            traj.voltage,
-            dV[:, :k] if names else None,
-            traj.ended_by,
-            traj.T2,
-            traj.T1,
-            dT[:, :k] if names else None,
-            dV[:, k].copy(),
-            dT[:, k].copy(),
-        )
+        k, dV, dT = len(names), traj.dV, traj.dT2  # θ̄'s columns, then the start SOC's
+        soc = (dV[:, k].copy(), dT[:, k].copy()) if with_soc and dV is not None and dT is not None else (None, None)
+        theta = (dV[:, :k], dT[:, :k]) if names and dV is not None and dT is not None else (None, None)
+        return Output(traj.voltage, theta[0], traj.ended_by, traj.T2, traj.T1, theta[1], *soc)

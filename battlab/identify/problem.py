@@ -245,12 +245,10 @@ class Problem:
             pred[k:] = out.voltage[-1]
         else:
             pred[:] = e.voltage[0] + 1.0  # nothing simulated: a large but finite residual
+        # rows after an early end are held values: zero, as the θ̄ columns'
         dsoc = None
-        if out.dsoc is not None:  # rows after an early end are held values: zero, as the θ̄ columns'
-            dsoc = (np.zeros(n), None if out.dsoc_T is None or not temperature else np.zeros(n))
-            dsoc[0][:k] = out.dsoc
-            if dsoc[1] is not None and out.dsoc_T is not None:
-                dsoc[1][:k] = out.dsoc_T
+        if out.dsoc is not None:
+            dsoc = (_zero_after(out.dsoc, n), _zero_after(out.dsoc_T, n) if temperature else None)
         if not temperature:
             return pred, S, None, None, dsoc
         predT = np.full(n, float(e.ambient) + 50.0)  # nothing simulated: a large but finite residual
@@ -261,6 +259,15 @@ class Problem:
             if sens and out.dT is not None:
                 ST[:k] = out.dT
         return pred, S, predT, ST, dsoc
+
+
+def _zero_after(a: np.ndarray | None, n: int) -> np.ndarray | None:
+    """``a`` padded with zeros to ``n`` rows (None stays None)."""
+    if a is None:
+        return None
+    out = np.zeros(n)
+    out[: a.size] = a
+    return out
 
 
 def rmse_mV(exps: Sequence[Experiment], preds: list[np.ndarray]) -> dict[str, float]:
