@@ -174,7 +174,7 @@ def check_sensitivities(cell: Cell, names: Sequence[str]) -> tuple[str, ...]:
 
 def _native(cell: Cell, mesh: Mesh, isothermal: bool):  # -> NativeStepper | None
     """The compiled stepper, or None when no C compiler can build it (then the CasADi stepper runs)."""
-    from battlab.model.native import NativeUnavailable
+    from battlab.model.build import NativeUnavailable
 
     try:
         return solver.native_stepper(cell, mesh, isothermal)

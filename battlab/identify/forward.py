@@ -91,8 +91,8 @@ class ForwardModel:
     def _native(self):  # -> NativeStepper | None
         if self._native_ok is None:
             from battlab.model import solver
+            from battlab.model.build import NativeUnavailable
             from battlab.model.mesh import Mesh
-            from battlab.model.native import NativeUnavailable
 
             try:
                 self._stepper = solver.native_stepper(self.cell, Mesh(), self.isothermal)

@@ -8,7 +8,7 @@ import scipy.sparse as sp
 
 import battlab
 from battlab import parameters
-from battlab.model import native, solver
+from battlab.model import build, native, solver
 from battlab.model.dfn import DFN
 from battlab.model.live import LiveCell
 from battlab.model.mesh import Mesh
@@ -87,7 +87,7 @@ def _replay(prog: native.LUProgram, jnz: np.ndarray, b: np.ndarray) -> np.ndarra
 def test_lu_program_solves_the_step_jacobian_at_another_state(cell: battlab.Cell) -> None:
     """The pivot order analysed at one state still solves the Newton matrix at another (static pivoting)."""
     model = DFN(cell, Mesh(n_n=4, n_s=3, n_p=4, n_r=5))
-    jac = {f.name(): f for f in native._functions(model)}["bl_jac"]
+    jac = {f.name(): f for f in build.functions(model)}["bl_jac"]
     jsp = jac.sparsity_out(0)
     th = np.array([cell.normalised(n) for n in parameters.NAMES])
     th_in = np.r_[th, model.input_values()]  # the C functions take θ̄ and then the cell's model inputs
@@ -186,7 +186,7 @@ def test_a_failing_compiler_is_named_and_the_library_never_half_written(
     tiny = Mesh(n_n=2, n_s=2, n_p=2, n_r=2)  # a small model: its build is what this test is about
     monkeypatch.setenv("BATTLAB_CACHE", str(tmp_path))
     monkeypatch.setenv("CC", "false")
-    with pytest.raises(native.NativeUnavailable, match="C build failed: .*false exited with code 1"):
+    with pytest.raises(build.NativeUnavailable, match="C build failed: .*false exited with code 1"):
         native.NativeStepper(DFN(cell, tiny))
     assert list(tmp_path.iterdir()) == []
     monkeypatch.delenv("CC")
