@@ -28,9 +28,9 @@ ACTIVATED = ("D_s_n", "D_s_p", "k_n", "k_p", "D_e", "kappa")
 class Thermal(Extension):
     """The temperature dependence as identifiable parameters: changes of the six activation energies of B5
     (dE_D_s_n, dE_D_s_p, dE_k_n, dE_k_p, dE_D_e, dE_kappa [J/mol] added to the cell's), factors on the surface-to-
-    ambient heat transfer (h2a_scale) and on both heat capacities (C_scale), and an offset of the cell's entropic
-    coefficient (dUdT_offset [V/K], in the reversible heat of B3). It acts through the temperature: an isothermal
-    simulation with it on is a contradiction (an error)."""
+    ambient heat transfer (h2a_scale; 0 is adiabatic) and on both heat capacities (C_scale), and an offset of the
+    cell's entropic coefficient (dUdT_offset [V/K], in the reversible heat of B3). It acts through the temperature:
+    an isothermal simulation with it on is a contradiction (an error)."""
 
     key: ClassVar[str] = KEY
     requires_thermal: ClassVar[bool] = True
@@ -95,7 +95,7 @@ CAUSE = Cause(
             KEY,
             "h2a_scale",
             "1",
-            (0.25, 4.0),
+            (0.0, 4.0),
             1.0,
             "factor on the surface-to-ambient heat transfer h2a",
             _LIN,

@@ -18,7 +18,7 @@ is named ("refit these": its base parameters). Fits that predict the held-out pa
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -34,10 +34,11 @@ from battlab.identify.experiments import Experiment
 from battlab.threads import thread_map
 from protocols.errors import InputError
 
-#: passing causes whose mechanism is fitted and checked on held-out data
-CONFIRM = 4
+#: causes whose mechanism is fitted and checked on held-out data: those owning the base refit's parameters, the
+#: leading passing ones, those whose directions take up most of the residual
+CONFIRM = 5
 #: at most this many causes fitted (the leading ones and those indistinguishable from them)
-MAX_CONFIRM = 5
+MAX_CONFIRM = 6
 #: base parameters of the cause-blind base refit
 N_BASE = 3
 #: relative held-out gain (RMS of noise-normalised errors) a cause's fit must show over the baseline to be named
@@ -54,34 +55,43 @@ S2_REFIT = 10.0
 #: a cause whose direction keeps less than this share after the others' base directions are projected out is one
 #: the other causes' base parameters mimic on these data
 MIMICKED = 0.05
-#: a base parameter the cell holds up to this far outside its search range (normalised θ̄) is still refitted (from
-#: the bound); farther out it is left at the cell's value
-RANGE_SLACK = 0.2
+
+
+#: how far [θ̄] each fit's search box reaches beyond the built-in range of the 18 (:attr:`battlab.identify.fit.Options.
+#: widen`): the ranges are the paper cell's, and a cell from another file may differ from it by more (PyBaMM's
+#: electrolyte diffusivity × 0.25 beside D_e_scale's 0.5-1.5)
+WIDEN = 0.5
 
 
 def fittable(cell: Cell, name: str) -> bool:
-    """Whether ``cell`` holds the base parameter inside its search range (or within :data:`RANGE_SLACK` of it,
-    normalised: a BPX cell's film resistances of 0 start at their small lower bounds) and can take any value in it:
-    one held far outside it (a BPX cell's transference number beside the built-in ranges) would start its fit
-    clipped to a bound, worse than the cell; one whose range holds impossible cells (a BPX cell's eps_e_n up to 0.45
-    beside its eps_s_n 0.69) would stop the fit that tries them."""
-    if not -RANGE_SLACK <= cell.normalised(name) <= 1.0 + RANGE_SLACK:
-        return False
+    """Whether a fit from ``cell`` can move the base parameter over its whole search box
+    (:func:`battlab.identify.fit.search_box` widened by :data:`WIDEN`, extended to hold a value the cell keeps outside
+    it): a box whose ends make an impossible cell (an electrolyte volume fraction the cell's active material leaves
+    no room for) would stop the fit that tries them."""
+    from battlab.identify.fit import search_box
+
+    (lo,), (hi,) = search_box(cell, [name], WIDEN)
     try:
-        cell.with_normalised(**{name: 0.0}).with_normalised(**{name: 1.0})
+        cell.with_normalised(**{name: float(lo)}).with_normalised(**{name: float(hi)})
     except InputError:
         return False
     return True
 
 
-def refit_names(cell: Cell, J: np.ndarray, r: np.ndarray, w: np.ndarray, names: Sequence[str]) -> tuple[str, ...]:
-    """The :data:`N_BASE` base parameters whose directions explain most of the residual ``r`` (|cos|, W), among
-    those ``cell`` can refit (:func:`fittable`)."""
+def relevance(J: np.ndarray, r: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Per column of ``J``: |cos| of the angle between its direction and the residual ``r`` (weights ``w``): how
+    much of the residual a small move of that parameter alone would explain."""
     Jw = J * np.sqrt(w)[:, None]
     norm = np.sqrt(np.sum(Jw**2, axis=0))
-    relevance = np.abs(Jw.T @ (r * np.sqrt(w))) / np.where(norm > 0, norm, np.inf)
+    return np.abs(Jw.T @ (r * np.sqrt(w))) / np.where(norm > 0, norm, np.inf)
+
+
+def refit_names(cell: Cell, J: np.ndarray, r: np.ndarray, w: np.ndarray, names: Sequence[str]) -> tuple[str, ...]:
+    """The :data:`N_BASE` base parameters whose directions explain most of the residual ``r`` (:func:`relevance`),
+    among those ``cell`` can refit (:func:`fittable`)."""
+    rel = relevance(J, r, w)
     inside = np.array([fittable(cell, n) for n in names])
-    order = [k for k in np.argsort(relevance)[::-1] if inside[k]]
+    order = [k for k in np.argsort(rel)[::-1] if inside[k]]
     return tuple(names[k] for k in order[:N_BASE])
 
 
@@ -92,11 +102,23 @@ def refit_names(cell: Cell, J: np.ndarray, r: np.ndarray, w: np.ndarray, names: 
 HELD_RADII = ("R_s_n", "R_s_p")
 
 
-def mechanism_names(cell: Cell, key: str, informed: Sequence[str]) -> tuple[str, ...]:
+#: a cause's fit moves at most this many of its base parameters, the most relevant to the residual: more, with nearly
+#: dependent directions, let 20 evaluations wander to a corner of the box (PyBaMM's electrolyte case: 8 electrolyte
+#: parameters ended at their upper bounds, 9.3 mV held out, where the base refit's D_e_scale alone reached 2.5 mV)
+MECHANISM_BASE = 4
+
+
+def mechanism_names(
+    cell: Cell, key: str, informed: Sequence[str], relevant: Mapping[str, float] | None = None
+) -> tuple[str, ...]:
     """What a cause's fit moves: its base parameters among the 18 that ``cell`` can refit (the radii held:
-    :data:`HELD_RADII`), then its extension's ``informed`` parameters (``KEY.NAME``)."""
+    :data:`HELD_RADII`), with ``relevant`` (name → :func:`relevance`) the :data:`MECHANISM_BASE` most relevant of
+    them, then its extension's ``informed`` parameters (``KEY.NAME``)."""
     c = causes.cause(key)
     base = [n for n in parameters.NAMES if n in c.base and n not in HELD_RADII and fittable(cell, n)]
+    if relevant is not None:
+        base = sorted(base, key=lambda n: -relevant.get(n, 0.0))[:MECHANISM_BASE]
+        base = [n for n in parameters.NAMES if n in base]
     return (*base, *informed)
 
 
@@ -132,7 +154,13 @@ def confirm(
 
     def one(k: int) -> Candidate:
         key, names = specs[k]
-        res = fit(models[k], list(train), names, options=Options(max_nfev=max_iter, temperature=True), forward=fms[k])
+        res = fit(
+            models[k],
+            list(train),
+            names,
+            options=Options(max_nfev=max_iter, temperature=True, widen=WIDEN),
+            forward=fms[k],
+        )
         rmse_train = float(np.sqrt(np.mean([v**2 for v in res.rmse_mV.values()]))) if res.rmse_mV else float("nan")
         held = held_out(fms[k], res.cell, parts)
         conf = Confirmation(
@@ -169,17 +197,17 @@ class Verdict:
 
 
 def withhold(v: Verdict, twins: Sequence[tuple[str, str, float]], untested: set[str]) -> Verdict:
-    """The verdict with its named cause withheld when a cause these data cannot fit (``untested``: passing its
-    score test ahead of the named cause, its evidence missing) is indistinguishable from it (``twins``): the fit of
-    the named cause may then stand in for the untested one (e.g. an OCV shift for a one-state hysteresis on a drive
-    that never rests after a charge), so the two are a pair, with the experiment that tests the untested one."""
-    if v.cause is None:
-        return v
-    alike = [b if a == v.cause else a for a, b, _ in twins if v.cause in (a, b)]
+    """The verdict with its named cause (or the group its fits cannot tell apart) joined by the causes these data
+    cannot fit (``untested``: passing their score test ahead of the named cause, their evidence missing) that are
+    indistinguishable from it (``twins``): the fit of the named cause may then stand in for the untested one (e.g.
+    an OCV shift for a one-state hysteresis on a drive that never rests after a charge), so they are a group, with
+    the experiment that tests the untested one."""
+    members = [v.cause] if v.cause is not None else (v.pairs[0] if v.pairs else [])
+    alike = [b if a in members else a for a, b, _ in twins if (a in members) != (b in members)]
     hidden = tuple(k for k in dict.fromkeys(alike) if k in untested)
     if not hidden:
         return v
-    return replace(v, cause=None, pairs=[[v.cause, *hidden]], untested=hidden)
+    return replace(v, cause=None, pairs=[[*members, *hidden], *v.pairs[1:]], untested=hidden)
 
 
 def _beats(a: HeldOut, b: HeldOut, block_s: float, gain: float = MIN_GAIN) -> bool:
@@ -219,20 +247,24 @@ SHARE_OF_BEST = 0.5
 
 
 def candidates(
-    passing: Sequence[Any], twins: Sequence[tuple[str, str, float]], share: dict[str, float] | None = None
+    passing: Sequence[Any],
+    twins: Sequence[tuple[str, str, float]],
+    share: dict[str, float] | None = None,
+    owners: Sequence[str] = (),
 ) -> list[str]:
-    """The causes to fit: the leading :data:`CONFIRM` passing extensions; when the base directions explain the
-    residual (``share`` given), the causes whose own directions take up most of it (at least
-    :data:`SHARE_OF_BEST` of the largest share); and any cause the data cannot tell apart from one of those (score
-    directions alike, or an extension inside another cause's own directions: it need not pass, the other's
-    parameters take up its effect); at most :data:`MAX_CONFIRM`."""
-    lead = [s.cause for s in passing[:CONFIRM]]
+    """The causes to fit: ``owners`` (the causes that own the base refit's parameters, given when the base
+    directions explain the residual: its fix may be theirs), the leading passing extensions; when the base
+    directions explain the residual (``share`` given), the causes whose own directions take up most of it (at least
+    :data:`SHARE_OF_BEST` of the largest share); :data:`CONFIRM` of these in all; and any cause the data cannot tell
+    apart from one of those (score directions alike, or an extension inside another cause's own directions: it need
+    not pass, the other's parameters take up its effect); at most :data:`MAX_CONFIRM`."""
+    lead = list(dict.fromkeys([*owners, *(s.cause for s in passing[:CONFIRM])]))
     if share:
         best = max(share.values())
         lead += [
             k for k, v in sorted(share.items(), key=lambda kv: -kv[1]) if v >= SHARE_OF_BEST * best and k not in lead
         ]
-        lead = lead[:CONFIRM]
+    lead = lead[:CONFIRM]
     alike = [b if a in lead else a for a, b, _ in twins if (a in lead) != (b in lead)]
     return [*lead, *(k for k in dict.fromkeys(alike) if k not in lead)][:MAX_CONFIRM]
 
@@ -301,15 +333,16 @@ def cannot_tell(v: Verdict, fits: Sequence[Candidate]) -> list[dict[str, Any]]:
 __all__ = [
     "CONFIRM",
     "HELD_RADII",
+    "MECHANISM_BASE",
     "MAX_CONFIRM",
     "MIMICKED",
     "MIN_GAIN",
     "N_BASE",
-    "RANGE_SLACK",
     "S2_REFIT",
     "SHARE_OF_BEST",
     "SOME_GAIN",
     "TIE",
+    "WIDEN",
     "Z_MIN",
     "Candidate",
     "Verdict",
@@ -321,6 +354,7 @@ __all__ = [
     "mechanism_names",
     "mimicked_by",
     "refit_names",
+    "relevance",
     "separating_experiment",
     "withhold",
 ]

@@ -100,7 +100,10 @@ class DiagnosisReport:
             lines.append(f"   {a_} and {b_} are indistinguishable on these data (|cos| {c:.2f})")
         g = s["extension_gain"]
         if self.base_fit is not None:
-            lines.append(f"held-out RMSE: base fit ({', '.join(self.base_fit.names)}) {g['rmse_before_mV']:.2f} mV")
+            lines.append(f"held-out RMSE: the cell as given {g['rmse_cell_mV']:.2f} mV")
+            lines.append(
+                f"               base refit ({', '.join(self.base_fit.names)}): {self.base_fit.rmse_held_out_mV:.2f} mV"
+            )
             for c in self.confirmations:
                 lines.append(f"               with {c.cause}: {c.rmse_held_out_mV:.2f} mV")
         else:

@@ -40,7 +40,6 @@ from battlab.diagnose.confirm import (
     MIMICKED,
     MIN_GAIN,
     N_BASE,
-    RANGE_SLACK,
     S2_REFIT,
     SOME_GAIN,
     Z_MIN,
@@ -48,6 +47,7 @@ from battlab.diagnose.confirm import (
     confirm,
     mimicked_by,
     refit_names,
+    relevance,
 )
 from battlab.diagnose.confirmation import Confirmation
 from battlab.diagnose.data import (
@@ -78,7 +78,6 @@ __all__ = [
     "MIN_GAIN",
     "N_BASE",
     "N_BLOCKS",
-    "RANGE_SLACK",
     "S2_REFIT",
     "SOME_GAIN",
     "V_MARGIN",
@@ -93,8 +92,8 @@ __all__ = [
 
 #: family-wise false-alarm rate of the ranking (Bonferroni over the causes tested)
 ALPHA = 0.01
-#: the training residual's mean square over the noise above this (and mostly along the base directions): the causes
-#: whose own directions take it up are fitted
+#: the training residual's mean square over the noise, in a logged channel, above this (and mostly along the base
+#: directions): the causes whose own directions take it up are fitted
 S2_BASE = 2.0
 #: contiguous blocks of the batch-means variance: about this many over the training part, each at least BLOCK_MIN_S
 N_BLOCKS = 30
@@ -304,7 +303,8 @@ def score_step(prep: Prepared, fm: Any, o: DiagnoseOptions, say: Reporter) -> Sc
     # extension, e.g. a loss of active material): the causes whose own directions take most of it are fitted (a
     # joint score test of 18 directions over ~30 blocks has too little power to screen, and a block-variance test
     # of an extension little more on a slow residual)
-    s2 = float(np.sum(w * r**2) / max(r.size, 1))
+    # per channel: a voltage residual beyond its noise is not diluted by a temperature that the model follows
+    s2 = max((float(np.mean((w * r**2)[rows])) for rows in (~ch.is_T, ch.is_T) if np.any(rows)), default=0.0)
     everyone = [c.key for c in causes.CAUSES if c.key in ch.S or (not c.parameters and c.base)]
     share = shares(ch, everyone)
     base_passes = s2 > S2_BASE and max(share.values(), default=0.0) > 0.5
@@ -364,13 +364,17 @@ def decide_step(prep: Prepared, fm: Any, sc: Scores, o: DiagnoseOptions, say: Re
 
     cell_held = held_out(fm, prep.base, prep.parts)
     relevant = refit_names(prep.base, sc.ch.J, sc.ch.r, sc.ch.w, parameters.NAMES)
-    keys = candidates(sc.passing, sc.twins, sc.share if sc.base_passes else {})
+    rel = dict(zip(parameters.NAMES, relevance(sc.ch.J, sc.ch.r, sc.ch.w), strict=True))
+    # the base directions explain a residual beyond the noise: the causes that own the base refit's parameters may
+    # be what it stands for (PyBaMM's faster kinetics, refitted by k_p, c_e0 and R_s_n)
+    owners = [c.key for n in relevant if (c := causes.owner(n)) is not None] if sc.base_passes else []
+    keys = candidates(sc.passing, sc.twins, sc.share if sc.base_passes else {}, owners)
     if not keys:
         from battlab.diagnose.confirm import Verdict
 
         return Decision(Verdict(None, None, "cell", cell_held, None), cell_held, None, [], relevant)
     specs = [("base", relevant)] + [
-        (k, names) for k in keys if (names := mechanism_names(prep.base, k, _informed(k, sc, prep)))
+        (k, names) for k in keys if (names := mechanism_names(prep.base, k, _informed(k, sc, prep), rel))
     ]
     say(
         "note",

@@ -29,6 +29,7 @@ from battlab.identify.experiments import Experiment
 from battlab.identify.forward import ForwardModel
 from battlab.identify.gauss_newton import GaussNewtonStep, bounded_gauss_newton
 from battlab.identify.problem import Problem, abs_errors_mV, residual_autocorrelation, rmse_mV
+from battlab.specs import Scale
 from battlab.threads import cores
 from protocols.errors import InputError
 
@@ -61,6 +62,10 @@ class Options:
     predicted_tol: float = 5e-3
     #: Also fit the logged surface temperature where the data have it (rows weighted by its own noise level)
     temperature: bool = False
+    #: How far [θ̄] the search box of each of the 18 base parameters reaches beyond its built-in range on either side
+    #: (:func:`search_box`): 0 for the paper's identification; a diagnosis of another cell asks where that cell
+    #: differs from its file, which need not lie inside the paper cell's ranges
+    widen: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -163,16 +168,39 @@ POLISH_STEPS = (1.0, 0.5, 0.25, 0.1, 0.03, 0.01)
 EPS_MARGIN = 1e-3
 
 
-def physical_upper(cell: Cell, names: Sequence[str]) -> np.ndarray:
-    """The upper bound of each fitted parameter in θ̄: 1, or less where the physical region ends inside the search
-    range (an electrolyte volume fraction ε_e± must leave room for the cell's active material: ε_s + ε_e < 1), so a
-    fit is held inside it by its parameterisation instead of failing on an impossible cell."""
-    out = np.ones(len(names))
+#: the search box of a parameter whose start value lies outside the built-in range (eq. 1's bounds, the paper cell's)
+#: reaches this far [θ̄] beyond that value, so a fit of another cell neither starts clipped to a bound nor is held there
+REACH = 0.5
+#: a positive quantity's search box stops at this fraction of its built-in lower bound (a diffusivity or conductivity
+#: scale of 0 is no cell)
+FLOOR = 0.1
+
+
+def search_box(cell: Cell, names: Sequence[str], widen: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """The lower and upper bounds of each fitted parameter in θ̄.
+
+    The built-in range [0, 1], widened by ``widen`` on either side for the 18 base parameters (:attr:`Options.widen`).
+    A parameter the start ``cell`` holds outside it (a BPX cell's rate constants two decades below the paper cell's)
+    gets the box extended to hold its value with :data:`REACH` beyond it: the cell's own value is the best prior, and
+    a fit that started clipped to the range would start from another cell. A linearly scaled quantity with a
+    non-negative range stays non-negative (one with a positive range above :data:`FLOOR` of its lower bound, unless
+    the cell holds less), and where the physical region ends inside the box (an electrolyte volume fraction ε_e± must
+    leave room for the cell's active material: ε_s + ε_e < 1) the bound is the physical one, so a fit is held inside
+    it by its parameterisation instead of failing on an impossible cell."""
+    lower, upper = np.zeros(len(names)), np.ones(len(names))
     for k, n in enumerate(names):
+        spec = parameters.spec(n)
+        th = float(cell.normalised(n))
+        w = widen if n in parameters.NAMES else 0.0
+        lo, hi = -w, 1.0 + w
+        lo, hi = (th - REACH if th < lo else lo), (th + REACH if th > hi else hi)
+        if spec.scale is Scale.LINEAR and spec.lower >= 0.0:
+            lo = max(lo, min(th, spec.normalise(FLOOR * spec.lower)))
         if n in ("eps_e_n", "eps_e_p"):
             cap = 1.0 - float(cell[f"eps_s_{n[-1]}"]) - EPS_MARGIN
-            out[k] = float(np.clip(parameters.SPECS[n].normalise(cap), 1e-3, 1.0))
-    return out
+            hi = float(np.clip(spec.normalise(cap), lo + 1e-3, hi))
+        lower[k], upper[k] = lo, hi
+    return lower, upper
 
 
 def _polish(prob: Problem, x: np.ndarray, opt: Options) -> tuple[np.ndarray, GaussNewtonStep, int]:
@@ -186,11 +214,11 @@ def _polish(prob: Problem, x: np.ndarray, opt: Options) -> tuple[np.ndarray, Gau
     """
     r, J, _ = prob.evaluate(x)
     cost = 0.5 * float(r @ r)
-    gn = bounded_gauss_newton(x, J, r, prob.upper)
+    gn = bounded_gauss_newton(x, J, r, prob.upper, prob.lower)
     used = 0
     while gn.failed is None and gn.predicted > opt.predicted_tol and used < opt.polish:
         for a in POLISH_STEPS[: opt.polish - used]:
-            xt = np.clip(x + a * gn.step, 0.0, prob.upper)
+            xt = np.clip(x + a * gn.step, prob.lower, prob.upper)
             rt = prob.evaluate(xt)[0]
             used += 1
             ct = 0.5 * float(rt @ rt)
@@ -200,7 +228,7 @@ def _polish(prob: Problem, x: np.ndarray, opt: Options) -> tuple[np.ndarray, Gau
             break
         x, cost = xt, ct
         r, J, _ = prob.evaluate(x)
-        gn = bounded_gauss_newton(x, J, r, prob.upper)
+        gn = bounded_gauss_newton(x, J, r, prob.upper, prob.lower)
     return x, gn, used
 
 
@@ -286,9 +314,11 @@ def _fit(
 ) -> FitResult:
     prob = Problem(fm, experiments, names, theta_full, soc_span, pool, ageing, opt.temperature)
     prob.on_evaluation = on_evaluation
-    prob.upper = np.r_[physical_upper(start, names), np.ones(prob.n_nuis + prob.n_age)]
+    lower, upper = search_box(start, names, opt.widen)
+    prob.lower = np.r_[lower, np.zeros(prob.n_nuis + prob.n_age)]
+    prob.upper = np.r_[upper, np.ones(prob.n_nuis + prob.n_age)]
     x0 = np.r_[
-        np.clip(theta_full[prob.idx], 1e-6, physical_upper(start, names) - 1e-6),
+        np.clip(theta_full[prob.idx], lower + 1e-6, upper - 1e-6),
         prob.soc_x0(soc_start or {}),
         np.clip(prob.age_x0(), 0.0, 1.0),
     ]
@@ -304,7 +334,7 @@ def _fit(
             lambda x: prob.evaluate(x)[0],
             x0,
             jac=lambda x: prob.evaluate(x)[1],
-            bounds=(np.zeros_like(x0), prob.upper),
+            bounds=(prob.lower, prob.upper),
             method="trf",
             x_scale="jac",
             ftol=opt.ftol,
@@ -362,12 +392,12 @@ def _fit(
         Q, _ = np.linalg.qr(J[:, p:])
         J = J[:, :p] - Q @ (Q.T @ J[:, :p])  # marginal information of the physical parameters
         x = x[:p]
-    top = prob.upper[: len(x)]
+    box = (prob.lower[: len(x)], prob.upper[: len(x)])
     at_bound = [
-        ("lower" if v < opt.bound_tol else "upper" if v > u - opt.bound_tol else None)
-        for v, u in zip(x, top, strict=True)
+        ("lower" if v < lo + opt.bound_tol else "upper" if v > u - opt.bound_tol else None)
+        for v, lo, u in zip(x, *box, strict=True)
     ]
-    st = statistics.compute(names, x, J, -r, at_bound, rcond=opt.rcond)
+    st = statistics.compute(names, x, J, -r, at_bound, rcond=opt.rcond, box=box)
     th = prob.full(x)
     fitted = start.with_normalised(**{n: float(v) for n, v in zip(names, x, strict=True)})
     conv = Convergence(bool(converged), reason, int(nfev), int(njev or 0), cost0, cost, float(opt_norm), seconds, dec)

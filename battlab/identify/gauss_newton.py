@@ -21,14 +21,14 @@ class GaussNewtonStep:
 
 
 def bounded_gauss_newton(
-    x: np.ndarray, J: np.ndarray, r: np.ndarray, upper: np.ndarray | None = None
+    x: np.ndarray, J: np.ndarray, r: np.ndarray, upper: np.ndarray | None = None, lower: np.ndarray | None = None
 ) -> GaussNewtonStep:
     """The Gauss–Newton step δ from ``x`` that minimises the linearised cost ½‖r + Jδ‖² inside the box
-    0 ≤ x + δ ≤ ``upper`` (default 1; bounded linear least squares on the column-scaled Jacobian), and the decrease
-    it predicts.
+    ``lower`` ≤ x + δ ≤ ``upper`` (default [0, 1]; bounded linear least squares on the column-scaled Jacobian), and
+    the decrease it predicts.
 
     Unbounded, the step along the nearly dependent directions (singular values 1e-4 of the largest) runs far
-    outside [0, 1]; inside the box the prediction stays meaningful.
+    outside the box; inside it the prediction stays meaningful.
 
     δ = 0 is inside the box, so the minimiser predicts a decrease ≥ 0, and at least that of the best step along
     the projected steepest descent (:func:`_steepest_descent_decrease`). A solution that predicts less did not
@@ -45,7 +45,8 @@ def bounded_gauss_newton(
     norms[norms == 0] = 1.0
     A = J / norms
     top = np.ones_like(x) if upper is None else np.asarray(upper, float)
-    lo, hi = -x * norms, (top - x) * norms
+    bottom = np.zeros_like(x) if lower is None else np.asarray(lower, float)
+    lo, hi = (bottom - x) * norms, (top - x) * norms
     hi = np.maximum(hi, lo + 1e-300)
     r2 = float(r @ r)
     slack = 1e-9 * r2  # round-off of ½(‖r‖² − ‖r + Jδ‖²), far below any predicted_tol in use

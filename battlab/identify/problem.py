@@ -58,8 +58,9 @@ class Problem:
         self._cache: dict[bytes, tuple[np.ndarray, np.ndarray, list[np.ndarray]]] = {}  # the last two points
         self.n_sim = 0  # simulations of all experiments (every evaluation not found in the cache)
         self.pool = pool
-        #: the fitted parameters' upper bounds in θ̄ (1 unless the physical region ends inside the range), then 1 for
-        #: the nuisances
+        #: the fitted parameters' bounds in θ̄ (:func:`battlab.identify.fit.search_box`), then [0, 1] for the
+        #: nuisances
+        self.lower = np.zeros(len(self.names))
         self.upper = np.ones(len(self.names))
         #: called after every simulation of all experiments with (simulations so far, cost ½‖r‖²)
         self.on_evaluation: Callable[[int, float], None] | None = None

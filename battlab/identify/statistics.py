@@ -120,14 +120,16 @@ def correlation(cov: np.ndarray | None) -> np.ndarray | None:
         return cov / np.outer(d, d)
 
 
-def _interval(name: str, th: float, half: float, side: str | None) -> tuple[float, float]:
+def _interval(
+    name: str, th: float, half: float, side: str | None, box: tuple[float, float] = (0.0, 1.0)
+) -> tuple[float, float]:
     spec = parameters.spec(name)
     lo, hi = th - half, th + half
     if side == "upper":
         hi = th
     elif side == "lower":
         lo = th
-    lo, hi = max(lo, 0.0), min(hi, 1.0)
+    lo, hi = max(lo, box[0]), min(hi, box[1])
     return spec.denormalise(lo), spec.denormalise(hi)
 
 
@@ -150,8 +152,10 @@ def compute(
     at_bound: Sequence[str | None] | None = None,
     *,
     rcond: float = RCOND,
+    box: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Statistics:
-    """Statistics of a weighted fit: ``J_w`` (N, p) = W^½ ∂ŷ/∂θ̄, ``r_w`` (N,) weighted residuals."""
+    """Statistics of a weighted fit: ``J_w`` (N, p) = W^½ ∂ŷ/∂θ̄, ``r_w`` (N,) weighted residuals; ``box``: the
+    search box in θ̄ (lower, upper; default [0, 1]) the intervals are intersected with."""
     names = tuple(names)
     th = np.asarray(theta_bar, float)
     J = np.asarray(J_w, float)
@@ -195,8 +199,9 @@ def compute(
         if not np.isfinite(sb):
             est.append(Estimate(nm, value, float(th[k]), None, None, None, None, bound[k], False))
             continue
-        ci = _interval(nm, float(th[k]), tval * sb, bound[k])
-        ci_s = _interval(nm, float(th[k]), tval * sb * np.sqrt(s2), bound[k])
+        edges = (0.0, 1.0) if box is None else (float(box[0][k]), float(box[1][k]))
+        ci = _interval(nm, float(th[k]), tval * sb, bound[k], edges)
+        ci_s = _interval(nm, float(th[k]), tval * sb * np.sqrt(s2), bound[k], edges)
         est.append(Estimate(nm, value, float(th[k]), sb, spec.dvalue_dnormalised(value) * sb, ci, ci_s, bound[k]))
     invs: dict[str, symmetry.Invariant] = {}
     electrodes = symmetry.complete_electrodes(names)

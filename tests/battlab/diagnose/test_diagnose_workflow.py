@@ -210,7 +210,7 @@ def test_the_held_out_decision_names_a_clear_win_pairs_alike_fits_and_names_noth
     than no fit is said. The leading passing causes, and those the data cannot tell from them, are fitted."""
     from types import SimpleNamespace
 
-    from battlab.diagnose.confirm import Candidate, candidates, cannot_tell, decide
+    from battlab.diagnose.confirm import Candidate, candidates, cannot_tell, decide, withhold
     from battlab.diagnose.held_out import HeldOut
     from battlab.diagnose.report import Confirmation
 
@@ -227,8 +227,11 @@ def test_the_held_out_decision_names_a_clear_win_pairs_alike_fits_and_names_noth
         return Candidate(key, (), Confirmation(key, (), {}, 0.0, h.rmse_mV, True, h.metric), h)
 
     passing = [SimpleNamespace(cause=c) for c in ("equilibrium", "capacity_fade", "current_sensor", "thermal", "x")]
-    assert candidates(passing, []) == ["equilibrium", "capacity_fade", "current_sensor", "thermal"]
+    assert candidates(passing, []) == ["equilibrium", "capacity_fade", "current_sensor", "thermal", "x"]
     assert candidates(passing[:1], [("equilibrium", "hysteresis", 0.98)]) == ["equilibrium", "hysteresis"]
+    # the owners of the base refit's parameters come first, once each, and the lead stays at CONFIRM
+    owned = candidates(passing, [], None, ["kinetics", "electrolyte", "kinetics"])
+    assert owned == ["kinetics", "electrolyte", "equilibrium", "capacity_fade", "current_sensor"]
     cell, base = held(3.6), fitted("base", 3.4)
     clear = decide(cell, base, [fitted("equilibrium", 2.48), fitted("current_sensor", 1.0)], 60.0)
     assert clear.cause == "current_sensor" and clear.how == "extension" and clear.baseline == "base refit"
@@ -242,6 +245,13 @@ def test_the_held_out_decision_names_a_clear_win_pairs_alike_fits_and_names_noth
     assert alike.cause is None and sorted(alike.pairs[0]) == ["contact_resistance", "kinetics"]
     (pair,) = cannot_tell(alike, [])
     assert "temperature" in pair["experiment"] and sorted(pair["causes"]) == ["contact_resistance", "kinetics"]
+    # a cause these data cannot fit, passing its score test and alike to a named cause or to a group, joins it
+    twins = [("kinetics", "hysteresis", 0.97), ("current_sensor", "hysteresis", 0.96)]
+    assert withhold(clear, twins, {"hysteresis"}).pairs == [["current_sensor", "hysteresis"]]
+    group = withhold(alike, twins, {"hysteresis"})
+    assert group.cause is None and group.untested == ("hysteresis",)
+    assert sorted(group.pairs[0]) == ["contact_resistance", "hysteresis", "kinetics"]
+    assert withhold(alike, twins, set()) is alike
 
 
 def test_a_prepared_measurement_is_diagnosed_after_its_lead_in_which_is_simulated_never_analysed(

@@ -335,12 +335,13 @@ def test_a_fit_is_held_inside_the_physical_region() -> None:
     """An electrolyte volume fraction's search range runs past the porosity the cell's active material leaves
     (ε_s⁺ 0.69: ε_e⁺ < 0.31, its range to 0.33): the fit's bound there is the physical one, so a fit pulled toward
     it ends at or below it instead of failing on an impossible cell."""
-    from battlab.identify.fit import physical_upper
+    from battlab.identify.fit import search_box
     from battlab.identify.virtual import synthesize
 
     start = battlab.Cell.load("nca18650").with_values(eps_s_p=0.69, eps_e_p=0.30)
-    top = physical_upper(start, ["eps_e_p", "R_s_n"])
-    assert top[1] == 1.0 and P.SPECS["eps_e_p"].denormalise(float(top[0])) == pytest.approx(0.309)
+    bottom, top = search_box(start, ["eps_e_p", "R_s_n"])
+    assert list(bottom) == [0.0, 0.0] and top[1] == 1.0
+    assert P.SPECS["eps_e_p"].denormalise(float(top[0])) == pytest.approx(0.309)
     truth = start.with_values(eps_e_p=0.3089)
     fm = ForwardModel(start)
     t = np.arange(0.0, 601.0)
@@ -348,3 +349,35 @@ def test_a_fit_is_held_inside_the_physical_region() -> None:
     e = synthesize(fm, truth, prof, 0.8, seed=5)
     res = F.fit(start, [e], ["eps_e_p"], forward=fm, options=F.Options(max_nfev=8))
     assert res.cell["eps_e_p"] <= 0.309 + 1e-9 and res.cell["eps_e_p"] + res.cell["eps_s_p"] < 1.0
+
+
+def test_a_cell_outside_the_built_in_range_is_fitted_from_its_own_value() -> None:
+    """A cell whose rate constant lies a decade below the built-in range (a BPX cell's beside the paper cell's):
+    its search box is extended to hold the value with half the range's width beyond it, so the fit starts from the
+    cell (not clipped to the range's lower bound, 10 × off) and recovers a truth below the range, with an interval
+    inside the extended box that covers it."""
+    from battlab.identify.fit import REACH, search_box
+    from battlab.identify.virtual import synthesize
+
+    spec = P.SPECS["k_n"]
+    start = battlab.Cell.load("nca18650").with_values(k_n=0.1 * spec.lower)
+    bottom, top = search_box(start, ["k_n", "R_s_n"])
+    assert bottom[0] == pytest.approx(spec.normalise(0.1 * spec.lower) - REACH) and top[0] == 1.0
+    assert bottom[1] == 0.0 and top[1] == 1.0
+    # widened (a diagnosis): a log-scaled range reaches beyond both ends, a positive scale stops short of 0, a film
+    # resistance the cell holds at 0 stays at or above it
+    bottom, top = search_box(start.with_values(R_f_n=0.0), ["D_e_scale", "R_f_n", "k_p"], widen=0.5)
+    de = P.SPECS["D_e_scale"]
+    assert de.denormalise(float(bottom[0])) == pytest.approx(0.1 * de.lower) and top[0] == 1.5
+    assert P.SPECS["R_f_n"].denormalise(float(bottom[1])) == pytest.approx(0.0, abs=1e-12)
+    assert (bottom[2], top[2]) == (-0.5, 1.5)
+    truth = start.with_values(k_n=0.07 * spec.lower)
+    fm = ForwardModel(start)
+    t = np.arange(0.0, 601.0)
+    prof = Profile(t, np.where((t // 60) % 2 == 0, -5.4, 0.0), id="pulses")
+    e = synthesize(fm, truth, prof, 0.8, seed=5)
+    res = F.fit(start, [e], ["k_n"], forward=fm, options=F.Options(max_nfev=15))
+    assert res.convergence.converged
+    est = res.statistics.estimates[0]
+    assert est.at_bound is None and est.ci95 is not None
+    assert est.ci95[0] <= truth["k_n"] <= est.ci95[1] < spec.lower
