@@ -335,6 +335,8 @@ class Decision:
     base_fit: Any
     fits: list[Any]
     relevant: tuple[str, ...]
+    #: base parameter → :func:`battlab.diagnose.confirm.relevance` to the training residual (what a cause's fit moves)
+    relevance: dict[str, float] = field(default_factory=dict)
 
     @property
     def cause(self) -> str | None:
@@ -372,7 +374,7 @@ def decide_step(prep: Prepared, fm: Any, sc: Scores, o: DiagnoseOptions, say: Re
     if not keys:
         from battlab.diagnose.confirm import Verdict
 
-        return Decision(Verdict(None, None, "cell", cell_held, None), cell_held, None, [], relevant)
+        return Decision(Verdict(None, None, "cell", cell_held, None), cell_held, None, [], relevant, rel)
     specs = [("base", relevant)] + [
         (k, names) for k in keys if (names := mechanism_names(prep.base, k, _informed(k, sc, prep), rel))
     ]
@@ -390,7 +392,7 @@ def decide_step(prep: Prepared, fm: Any, sc: Scores, o: DiagnoseOptions, say: Re
     cannot_fit = {e["cause"] for e in testability.untestable(prep.train, None, i_rest)}
     untested = {k for k in cannot_fit & p.keys() if p[k] < p.get(verdict.cause or "", 1.0)}
     verdict = withhold(verdict, sc.twins, untested)
-    return Decision(verdict, cell_held, base_fit, fits, relevant)
+    return Decision(verdict, cell_held, base_fit, fits, relevant, rel)
 
 
 def also_fit_step(prep: Prepared, d: Decision, sc: Scores, o: DiagnoseOptions, say: Reporter) -> list[dict[str, Any]]:
@@ -410,7 +412,10 @@ def also_fit_step(prep: Prepared, d: Decision, sc: Scores, o: DiagnoseOptions, s
             bad = c.not_informed(c.qualified_names, prep.train, i_rest)
             return tuple(n for n in c.qualified_names if n not in bad)
 
-        specs = [(k, d.relevant if k == "base" else mechanism_names(prep.base, k, informed(k))) for k in todo]
+        specs = [
+            (k, d.relevant if k == "base" else mechanism_names(prep.base, k, informed(k), d.relevance or None))
+            for k in todo
+        ]
         done.update({c.key: c for c in confirm(prep.base, specs, prep.train, prep.parts, o.max_iter)})
     ref = d.verdict.base if d.verdict.base is not None else done["base"].held
     return [
