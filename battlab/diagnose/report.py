@@ -130,7 +130,8 @@ class DiagnosisReport:
             )
         if s.get("undecided"):
             lines.append(f"undecided: {s['undecided']}")
-        lines.append(f"({s['seconds']:.0f} s)")
+        by_step = ", ".join(f"{k} {v:.0f} s" for k, v in s.get("seconds_by_step", {}).items())
+        lines.append(f"({s['seconds']:.0f} s" + (f": {by_step})" if by_step else ")"))
         return "\n".join(lines)
 
     def write(self, outdir: str | Path) -> Path:

@@ -61,6 +61,7 @@ from battlab.diagnose.data import (
     simulate_on,
     split,
 )
+from battlab.diagnose.held_out import improvement_z
 from battlab.diagnose.report import DiagnosisReport
 from battlab.identify.data_files import Ambient
 from battlab.progress import Reporter, Subscriber
@@ -370,7 +371,7 @@ def decide_step(prep: Prepared, fm: Any, sc: Scores, o: DiagnoseOptions, say: Re
     # the base directions explain a residual beyond the noise: the causes that own the base refit's parameters may
     # be what it stands for (PyBaMM's faster kinetics, refitted by k_p, c_e0 and R_s_n)
     owners = [c.key for n in relevant if (c := causes.owner(n)) is not None] if sc.base_passes else []
-    keys = candidates(sc.passing, sc.twins, sc.share if sc.base_passes else {}, owners)
+    keys = candidates(sc.passing, sc.twins, sc.share if sc.base_passes else {}, owners, sc.base_share)
     if not keys:
         from battlab.diagnose.confirm import Verdict
 
@@ -565,7 +566,11 @@ def summarise(prep: Prepared, res: Residuals, sc: Scores, d: Decision, o: Diagno
         "residual": res.analysis.summary(),
         "data": prep.files,
         "held_out": prep.held_name,
-        "confirmations": [c.__dict__ for c in ([d.base_fit.confirmation] if d.base_fit else []) + d.confirmations],
+        # each fit's held-out gain over the baseline, in standard errors of the paired block test
+        "confirmations": [
+            {**f.confirmation.__dict__, "z_vs_baseline": improvement_z(v.base, f.held, sc.block_s)}
+            for f in ([d.base_fit] if d.base_fit else []) + list(d.fits)
+        ],
         "worse_than_no_fit": v.worse,
         "warnings": prep.warnings,
     }
@@ -590,14 +595,23 @@ def diagnose(options: DiagnoseOptions, subscribers: Sequence[Subscriber] = ()) -
         preparations=o.preparations,
         full_charge_soc=o.full_charge_soc,
     )
+    steps: dict[str, float] = {"prepare": time.perf_counter() - t_start}
+
+    def timed(name: str, f: Any, *args: Any) -> Any:
+        t0 = time.perf_counter()
+        out = f(*args)
+        steps[name] = time.perf_counter() - t0
+        return out
+
     say("note", text="simulating the cell on the data")
     fm = ForwardModel(prep.base, v_margin=V_MARGIN)
-    res = residual_step(prep, fm)
-    sc = score_step(prep, fm, o, say)
-    d = decide_step(prep, fm, sc, o, say)
+    res = timed("residual", residual_step, prep, fm)
+    sc = timed("score tests", score_step, prep, fm, o, say)
+    d = timed("confirmation fits", decide_step, prep, fm, sc, o, say)
     summary = summarise(prep, res, sc, d, o)
     if o.also_fit:
-        summary["also_fitted"] = also_fit_step(prep, d, sc, o, say)
+        summary["also_fitted"] = timed("also_fit", also_fit_step, prep, d, sc, o, say)
     summary["seconds"] = time.perf_counter() - t_start
+    summary["seconds_by_step"] = steps
     base_fit = d.base_fit.confirmation if d.base_fit is not None else None
     return DiagnosisReport(summary, res.analysis, sc.ranked, d.confirmations, base_fit, cell.name, prep.warnings)

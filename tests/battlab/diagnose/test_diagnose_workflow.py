@@ -232,6 +232,14 @@ def test_the_held_out_decision_names_a_clear_win_pairs_alike_fits_and_names_noth
     # the owners of the base refit's parameters come first, once each, and the lead stays at CONFIRM
     owned = candidates(passing, [], None, ["kinetics", "electrolyte", "kinetics"])
     assert owned == ["kinetics", "electrolyte", "equilibrium", "capacity_fade", "current_sensor"]
+    # a cause whose own directions take most of what the base directions leave comes before them (an adiabatic
+    # cell logged as cooled: the base directions take 0.4 % of the residual, the thermal cause's 87 %)
+    share = {"thermal": 0.87, "equilibrium": 0.02, "kinetics": 0.004}
+    beyond = candidates(passing, [], share, ["kinetics", "electrolyte"], 0.004)
+    assert beyond == ["thermal", "kinetics", "electrolyte", "equilibrium", "capacity_fade"]
+    # with every share at the base directions' own, no cause is ahead of the owners
+    level = {"thermal": 0.98, "kinetics": 0.98, "electrolyte": 0.98}
+    assert candidates([], [], level, ["kinetics"], 0.98)[:1] == ["kinetics"]
     cell, base = held(3.6), fitted("base", 3.4)
     clear = decide(cell, base, [fitted("equilibrium", 2.48), fitted("current_sensor", 1.0)], 60.0)
     assert clear.cause == "current_sensor" and clear.how == "extension" and clear.baseline == "base refit"
