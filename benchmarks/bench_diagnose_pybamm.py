@@ -7,7 +7,8 @@ through its command line in a subprocess (this checkout first on the path) on ev
 made for it, and the script prints
 
 - per case: the expected catalog key, the cause named, the outcome, the held-out RMSE of the baseline (the better of
-  the unrefitted cell and the base refit) and of the named cause's fit with the gain, the effect's size (PyBaMM's
+  the unrefitted cell and the base refit; the cell alone for a cause named as a refit of its own base parameters)
+  and of the named cause's fit with the gain, the effect's size (PyBaMM's
   noise-free RMSE against its plain DFN on the same profile: how far the effect is from a null at all), the
   diagnosis's wall time, and the summary's ``cannot_tell`` pairs;
 - the confusion table (expected key × named cause; ``null`` for the plain DFN, ``-`` for nothing named);
@@ -87,9 +88,14 @@ def effect_size(case: pe.Case, data: Path) -> dict[str, float] | None:
 
 def held_out(summary: dict[str, Any]) -> tuple[float | None, float | None, float | None]:
     """(baseline, after, gain): the held-out RMSE [mV] of the better of the unrefitted cell and the base refit, of
-    the fit of the cause named, and the gain 1 − after/baseline (None where nothing was fitted or named)."""
+    the fit of the cause named, and the gain 1 − after/baseline (None where nothing was fitted or named). A cause
+    named as a refit of its own base parameters (``"how": "refit"``: the cause-blind base refit found the same
+    explanation) is measured against the unrefitted cell: the base refit is then that cause's fix, not a rival."""
     g = summary.get("extension_gain") or {}
-    base = [g.get(k) for k in ("rmse_before_mV", "rmse_cell_mV", "rmse_base_refit_mV")]
+    keys = (
+        ("rmse_cell_mV",) if summary.get("how") == "refit" else ("rmse_before_mV", "rmse_cell_mV", "rmse_base_refit_mV")
+    )
+    base = [g.get(k) for k in keys]
     base = [x for x in base if isinstance(x, int | float)]
     baseline = min(base) if base else None
     after = g.get("rmse_after_mV")

@@ -146,7 +146,8 @@ NOT_YET = {
 )
 def test_the_diagnosis_names_the_hidden_cause_of_pybamm_data(name, made, tmp_path) -> None:
     """The catalog key of the hidden effect is the summary's ``cause``, and its fit predicts the held-out part at
-    least 30 % better than the better of the unrefitted cell and the base refit."""
+    least 30 % better than the better of the unrefitted cell and the base refit (than the cell, for a cause named as
+    a refit of its own base parameters: :func:`bench_diagnose_pybamm.held_out`)."""
     r = made(name)
     summary, _ = bench.diagnose_cli(r["paths"]["csv"], r["paths"]["cell"], tmp_path / "report")
     assert summary["cause"] == pe.CASES[name].cause, (summary["cause"], summary["verdict"], summary["ranking"][:3])
