@@ -29,6 +29,8 @@ def test_help() -> None:
 def test_serve_in_a_process_then_ctrl_c() -> None:
     cmd = [
         sys.executable,
+        "-X",
+        "faulthandler",  # a hang is reported with every thread's stack (SIGABRT below)
         "-c",
         "from battlab.cli import main; main()",
         "virtual-tester",
@@ -65,7 +67,12 @@ def test_serve_in_a_process_then_ctrl_c() -> None:
             d.close()
         proc.send_signal(signal.SIGINT)
         # alone it stops within 0.2 s; inside the whole suite on a 2-core host it has taken over 10 s
-        out, err = proc.communicate(timeout=30)
+        try:
+            out, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGABRT)
+            _, stacks = proc.communicate(timeout=10)
+            pytest.fail(f"Ctrl-C did not stop the served lab within 30 s; its threads:\n{stacks[-6000:]}")
         assert proc.returncode == 0, err
         assert "stopped after" in out
     finally:
