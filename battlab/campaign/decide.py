@@ -4,8 +4,9 @@ as for any run), add its log to the data and diagnose again, until one cause win
 spent. Each round (the pair, the experiment chosen, its expected divergence and lab hours, the ranking after it) is
 kept for the report.
 
-The new log is held out (the last data file): both candidates are fitted on the data so far, and the one that
-predicts the deciding experiment is named by the diagnosis's own held-out rule.
+The first diagnosis holds out what its options say; each later one holds out the new log (the last data file): both
+candidates are fitted on the data so far, and the one that predicts the deciding experiment is named by the
+diagnosis's own held-out rule.
 """
 
 from __future__ import annotations
@@ -119,7 +120,9 @@ def decide(o: DecideOptions, subscribers: Sequence[Subscriber] = ()) -> Decided:
     cell = o.diagnosis.cell if isinstance(o.diagnosis.cell, Cell) else Cell.load(o.diagnosis.cell)
     spent, rounds = 0.0, []
     for k in range(o.max_rounds + 1):
-        rep = diagnose(replace(o.diagnosis, data=tuple(data), held_out=None), subscribers)
+        # the data's own held-out part first, then each deciding experiment's log
+        held = (data[-1],) if rounds else o.diagnosis.held_out
+        rep = diagnose(replace(o.diagnosis, data=tuple(data), held_out=held), subscribers)
         s = rep.summary
         if rounds:  # what the last deciding experiment changed
             rounds[-1]["cause_after"] = s["cause"]

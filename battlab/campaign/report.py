@@ -410,14 +410,24 @@ def diagnosis(view: View) -> Section:
         blocks.append(Table(cols, rows, caption="deciding experiments run on the tester"))
     if dg.get("undecided"):
         blocks.append(Paragraph(f"undecided: {dg['undecided']}", "bad"))
+    tried = dg.get("extended") or []
+    if len(tried) > 1:
+        blocks.append(
+            Table(
+                ["cause", "before [mV]", "after [mV]", "kept"],
+                [[t["cause"], t["rmse_before_mV"], t["rmse_after_mV"], "yes" if t["kept"] else "no"] for t in tried],
+                caption="causes extended (extend step) and scored on the validation tests (mean RMSE)",
+            )
+        )
     table = dg.get("validation_rmse_mV") or {}
     if table:
         names = list(next(iter(table.values())))
+        shown = (dg.get("extension_gain") or {}).get("cause") or cause or dg.get("suggested")
         blocks.append(
             Table(
                 ["held-out test", "before [mV]", "after [mV]"],
                 [[n, table["before"][n], table["after"][n]] for n in names],
-                caption=f"the OED fit before and after the {cause} extension (extend step)",
+                caption=f"the OED fit before and after the {shown} extension (extend step)",
             )
         )
     g = dg.get("diagnosis_gain") or {}

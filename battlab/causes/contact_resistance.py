@@ -2,8 +2,11 @@
 electrodes' solid phase. The base model holds the solid conductivities σ±; the extension adds a series resistance
 with its own temperature coefficient.
 
-A series resistance and the film resistances R_f± differ only in their temperature dependence (R_f's follows the
-kinetics' Arrhenius law, R_c's a linear coefficient): at one ambient the data cannot tell them apart."""
+A series resistance and the film resistances R_f± look alike on full-cell voltage: R_c drops I·R_c whatever the
+reaction's distribution through the electrodes, a film's drop follows the local reaction current and departs from a
+series resistance only where that distribution is far from uniform; the solid conductivities σ± act as one too. In
+this model neither R_f nor σ has a temperature dependence of its own; on a real cell an SEI film's resistance is
+thermally activated and a metal contact's barely changes, so pulses at two ambients tell them apart there."""
 
 from __future__ import annotations
 
@@ -48,8 +51,8 @@ CAUSE = Cause(
     mechanism="electronic resistance in series with the cell and in the electrodes' solid phase",
     informed_by=Evidence(
         "pulse",
-        "short pulses at two ambient temperatures (a series resistance and the film resistance R_f differ only in "
-        "their temperature dependence)",
+        "short pulses at two ambient temperatures (a real cell's film resistance is thermally activated, a series "
+        "contact's barely changes)",
     ),
     base=("sigma_n", "sigma_p", "R_c"),
     extension=ContactResistance,
@@ -65,6 +68,6 @@ CAUSE = Cause(
     validated_by="PyBaMM's 'contact resistance' option on a BPX cell (benchmarks/bench_extensions.py)",
     separates={
         "kinetics": "short pulses at two ambient temperatures (a series resistance barely changes with temperature, "
-        "the film resistance and the charge transfer follow the kinetics' Arrhenius law)"
+        "the charge transfer follows the kinetics' Arrhenius law, as a real cell's film resistance does)"
     },
 )

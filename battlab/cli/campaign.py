@@ -164,6 +164,8 @@ def campaign(
         found = f"cause {dg['cause']}" if dg.get("cause") else "no cause named"
         if not dg.get("cause") and dg.get("suggested"):
             found = f"no cause confirmed ({dg['suggested']} named by the diagnosis, not kept)"
+        elif not dg.get("cause") and g.get("cause"):
+            found = f"no cause confirmed ({', '.join(t['cause'] for t in dg.get('extended', []))} extended, not kept)"
         if g.get("rmse_after_mV") is not None:
             found += f", held-out RMSE {g['rmse_before_mV']:.2f} -> {g['rmse_after_mV']:.2f} mV after extending"
         rounds = dg.get("rounds") or []

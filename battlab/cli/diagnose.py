@@ -27,9 +27,10 @@ from battlab.cli.options import (
 @click.option("--cell", "cell_name", required=True, help="The cell: a built-in name or a BPX file.")
 @click.option(
     "--held-out",
-    default=None,
+    multiple=True,
     type=click.Path(dir_okay=False),
-    help="Data to hold out for the confirmation (default: the last file; with one file its final 30 %).",
+    help="Data to hold out for the confirmation (repeat for several; default: the last file; with one file its "
+    "final 30 %).",
 )
 @AMBIENT_OPTION
 @soc0_option()
@@ -72,7 +73,7 @@ from battlab.cli.options import (
 def diagnose(
     data: tuple[str, ...],
     cell_name: str,
-    held_out: str | None,
+    held_out: tuple[str, ...],
     ambients: tuple[str, ...],
     soc0: float | None,
     dt: float,

@@ -2,7 +2,7 @@
 voltage), checked against the cell, split into training and held-out parts.
 
 Training and held-out parts: with one file its final :data:`HELD_OUT_FRACTION` of samples is held out; with several
-the last file is (or the one given as ``held_out``; a held-out file not among the data is added). Data and cell that
+the last file is (or those given as ``held_out``; a held-out file not among the data is added). Data and cell that
 do not match (voltage outside the cell's window, rest voltage outside its OCV range, more charge than
 :data:`CAPACITY_FACTOR` times its capacity, a simulation that stops before half the data) are one
 :class:`InputError`.
@@ -71,10 +71,13 @@ class Part:
         return replace(e, profile=prof, voltage=e.voltage[:k], variance=var, **cut)
 
 
-def split(data_parts: list[tuple[str, list[Experiment]]], held_out: str | None) -> tuple[list[Part], str]:
+def split(
+    data_parts: list[tuple[str, list[Experiment]]], held_out: Sequence[str] | str | None
+) -> tuple[list[Part], str]:
     """Training and held-out parts of the experiments of each file (see the module docstring), and the name of
-    the held-out data."""
-    if held_out is None and len(data_parts) == 1:
+    the held-out data (several: joined by " + ")."""
+    hold = (held_out,) if isinstance(held_out, str) else tuple(held_out or ())
+    if not hold and len(data_parts) == 1:
         name, exps = data_parts[0]
         total = sum(e.voltage.size for e in exps)
         cut = int(round((1.0 - HELD_OUT_FRACTION) * total))
@@ -83,9 +86,9 @@ def split(data_parts: list[tuple[str, list[Experiment]]], held_out: str | None) 
             parts.append(Part(e, int(np.clip(cut - seen, 0, e.voltage.size))))  # a lead-in is never held out
             seen += e.voltage.size
         return parts, f"{name} (final {100 * HELD_OUT_FRACTION:.0f} %)"
-    hold = data_parts[-1][0] if held_out is None else held_out
-    parts = [Part(e, 0 if name == hold else e.voltage.size) for name, exps in data_parts for e in exps]
-    return parts, hold
+    hold = hold or (data_parts[-1][0],)
+    parts = [Part(e, 0 if name in hold else e.voltage.size) for name, exps in data_parts for e in exps]
+    return parts, " + ".join(dict.fromkeys(hold))
 
 
 def _file_key(path: str | Path, data: Any) -> set[str]:
@@ -147,7 +150,7 @@ def prepare(
     data: Sequence[str | Path],
     cell: Cell,
     *,
-    held_out: str | Path | None,
+    held_out: Sequence[str | Path] | None,
     soc0: float | None,
     ambient: Ambient,
     dt: float,
@@ -155,20 +158,21 @@ def prepare(
     preparations: Sequence[tuple[str | Path, str | Path]] = (),
     full_charge_soc: float = 1.0,
 ) -> Prepared:
-    """Load, check and split the data (see the module docstring). ``preparations``: (data file, the log of its
-    preparation): the file's first experiment starts at the preparation's full charge, the preparation simulated as
-    its unscored lead-in (:func:`battlab.identify.runlog.after_preparation`), from ``full_charge_soc``."""
+    """Load, check and split the data (see the module docstring; ``held_out``: the files to hold out, none for
+    the default). ``preparations``: (data file, the log of its preparation): the file's first experiment starts at
+    the preparation's full charge, the preparation simulated as its unscored lead-in
+    (:func:`battlab.identify.runlog.after_preparation`), from ``full_charge_soc``."""
     from battlab.identify import runlog
     from battlab.identify.experiments import experiments_from_data
 
     base = _base(cell)
+    held_out = tuple(held_out or ())
     paths = [str(p) for p in data]
-    if held_out is not None and not any(str(held_out) in _file_key(p, Path(p)) for p in paths):
-        paths.append(str(held_out))
+    paths += [str(h) for h in held_out if not any(str(h) in _file_key(p, Path(p)) for p in paths)]
     check_ambient_keys(paths, ambient)
     loaded, warned = load_all(paths, fix_sign=fix_sign)
     preps = _preparation_logs(preparations, fix_sign)
-    hold_name: str | None = None
+    hold_names: list[str] = []
     data_parts: list[tuple[str, list[Experiment]]] = []
     for p, d in zip(paths, loaded, strict=True):
         _check_capacity(d, base)
@@ -177,9 +181,9 @@ def prepare(
         if Path(p).resolve() in preps and exps:
             exps[0] = runlog.after_preparation(exps[0], preps[Path(p).resolve()], base, full_charge_soc)
         data_parts.append((d.name, exps))
-        if held_out is not None and str(held_out) in _file_key(p, d):
-            hold_name = d.name
-    parts, held_name = split(data_parts, hold_name)
+        if any(str(h) in _file_key(p, d) for h in held_out):
+            hold_names.append(d.name)
+    parts, held_name = split(data_parts, hold_names)
     train = [e for e in (p.training() for p in parts) if e is not None]
     if not train:
         raise InputError("diagnose: no training data left (give more than the held-out file)")

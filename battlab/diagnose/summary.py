@@ -114,6 +114,8 @@ def summarise(prep: Prepared, res: Residuals, sc: Scores, d: Decision, o: Diagno
         "rmse_before_K": v.base.rmse_K,
         "rmse_after_K": chosen.held.rmse_K if chosen is not None else None,
         "gain": (1.0 - chosen.held.metric / v.base.metric) if chosen is not None else None,
+        # the baseline's held-out RMS of noise-normalised errors: each confirmation's ``held_out_metric`` against it
+        "metric_before": v.base.metric,
         "z": v.z,
     }
     if chosen is not None:

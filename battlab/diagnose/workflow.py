@@ -104,18 +104,18 @@ BLOCK_MIN_S = 60.0
 
 @dataclass(frozen=True)
 class DiagnoseOptions:
-    """One diagnosis: ``data`` (paths), ``cell`` (a built-in name, a BPX file or a :class:`Cell`); ``held_out``: a
-    path or file name among the data, or another file, to hold out; ``ambient`` [K] for data that do not log it;
-    ``causes``: catalog keys to test (default :data:`battlab.diagnose.directions.DEFAULT_CAUSES`); ``also_fit``:
-    causes whose extension is fitted on the same terms as a confirmation whatever the score tests say, reported in
-    the summary's ``also_fitted`` (not used in the decision: an outside check of what the data can show);
+    """One diagnosis: ``data`` (paths), ``cell`` (a built-in name, a BPX file or a :class:`Cell`); ``held_out``:
+    paths or file names among the data, or other files, to hold out (one or several); ``ambient`` [K] for data that
+    do not log it; ``causes``: catalog keys to test (default :data:`battlab.diagnose.directions.DEFAULT_CAUSES`);
+    ``also_fit``: causes whose extension is fitted on the same terms as a confirmation whatever the score tests say,
+    reported in the summary's ``also_fitted`` (not used in the decision: an outside check of what the data can show);
     ``preparations``: (data file, the log of its preparation) pairs, each file started at its preparation's full charge
     with the preparation as unscored lead-in (:func:`battlab.diagnose.data.prepare`), at ``full_charge_soc`` (1 by
     definition; the SOC a fit of the same preparations found the full charge to leave)."""
 
     data: tuple[str | Path, ...]
     cell: Cell | str | Path
-    held_out: str | Path | None = None
+    held_out: str | Path | Sequence[str | Path] | None = None
     soc0: float | None = None
     ambient: Ambient = None
     dt: float = 1.0
@@ -131,9 +131,11 @@ class DiagnoseOptions:
         from battlab.diagnose.directions import DEFAULT_CAUSES
 
         object.__setattr__(self, "data", tuple(self.data))
+        held = self.held_out
+        object.__setattr__(self, "held_out", (held,) if isinstance(held, str | Path) else tuple(held or ()))
         object.__setattr__(self, "also_fit", tuple(self.also_fit))
         object.__setattr__(self, "preparations", tuple((str(a), str(b)) for a, b in self.preparations))
-        given = {Path(p).resolve() for p in (*self.data, *(() if self.held_out is None else (self.held_out,)))}
+        given = {Path(p).resolve() for p in (*self.data, *self.held_out)}
         for d, _ in self.preparations:
             if Path(d).resolve() not in given:
                 raise InputError(f"--preparation {d}=…: {d} is not one of the data files")

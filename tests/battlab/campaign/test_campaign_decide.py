@@ -50,3 +50,23 @@ def test_candidates_follow_the_evidence_and_models_the_fits() -> None:
     models = fitted_models(Report(), ["contact_resistance", "kinetics"], cell)  # type: ignore[arg-type]
     assert models["contact_resistance"][0].value("contact_resistance.R_c") == 0.002
     assert models["kinetics"][0]["R_f_n"] == 8e-4 and not models["kinetics"][0].extensions
+
+
+def test_the_first_diagnosis_holds_out_what_its_options_say(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A decided diagnosis held out the last file whatever ``held_out`` said (the campaign's drive cycle by luck of
+    order); when the data already tell, the first diagnosis is the only one and uses the options' held-out data."""
+    import battlab.campaign.decide as D
+
+    seen = []
+
+    class Report:
+        summary = {"cause": None, "cannot_tell": [], "ranking": []}
+
+    def diagnose(options: DiagnoseOptions, subscribers: object = ()) -> Report:
+        seen.append(options.held_out)
+        return Report()
+
+    monkeypatch.setattr(D, "diagnose", diagnose)
+    d = DiagnoseOptions(("a.csv", "b.csv", "c.csv"), "nca18650", held_out="a.csv")
+    D.decide(DecideOptions(d, tmp_path, truth="nca18650-true"))
+    assert seen == [("a.csv",)]

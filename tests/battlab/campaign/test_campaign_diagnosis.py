@@ -14,6 +14,8 @@ def test_a_named_cause_is_kept_only_when_the_extended_cell_wins_the_validation_t
     assert verdict.endswith("The diagnosis: equilibrium: ...")
     assert kept("equilibrium", "v", {"rmse_before_mV": 10.0, "rmse_after_mV": 7.1})[0] is None  # 29 %: short
     assert kept(None, "no cause", {"rmse_before_mV": None, "rmse_after_mV": None}) == (None, "no cause")
+    cause, verdict = kept("hysteresis", "no cause", {"rmse_before_mV": 10.0, "rmse_after_mV": 9.0}, named=False)
+    assert cause is None and verdict.startswith("not confirmed: hysteresis (its fit won the held-out data short")
 
 
 def test_a_cause_a_deciding_experiment_told_apart_is_kept_when_the_validation_tests_get_no_worse() -> None:
@@ -24,3 +26,18 @@ def test_a_cause_a_deciding_experiment_told_apart_is_kept_when_the_validation_te
     assert kept("contact_resistance", "v", same, decided=True) == ("contact_resistance", "v")
     cause, verdict = kept("contact_resistance", "v", {"rmse_before_mV": 8.6, "rmse_after_mV": 9.8}, decided=True)
     assert cause is None and "8.60 -> 9.80 mV (no more than 10 % worse)" in verdict
+
+
+def test_the_causes_extended_are_the_named_one_else_those_whose_fits_won_by_the_margin_short_of_the_noise() -> None:
+    from battlab.campaign.diagnosis import MAX_EXTEND, candidates
+
+    def fit(cause: str, metric: float) -> dict[str, object]:
+        return {"cause": cause, "held_out_metric": metric, "z_vs_baseline": 3.0}
+
+    fits = [fit("base", 5.0), fit("current_sensor", 7.2), fit("hysteresis", 4.5), fit("thermal", 6.9), fit("x", 9.0)]
+    s = {"cause": None, "extension_gain": {"metric_before": 10.0}, "confirmations": fits}
+    # 55 %, 31 % and 28 % better than the baseline: the first two, the best first; never the base refit
+    assert candidates(s) == ["hysteresis", "thermal"][:MAX_EXTEND]
+    assert candidates({**s, "cause": "current_sensor"}) == ["current_sensor"]
+    assert candidates({**s, "extension_gain": {"metric_before": 6.0}}) == []  # 25 % at best
+    assert candidates({**s, "extension_gain": {}}) == []

@@ -146,7 +146,7 @@ def test_a_contact_resistance_along_the_base_directions_is_found_by_fitting_the_
         assert fitted.values["contact_resistance.R_c"] == pytest.approx(0.010, abs=0.002)
 
 
-def test_one_file_holds_out_its_final_30_percent_several_the_last(logs) -> None:
+def test_one_file_holds_out_its_final_30_percent_several_the_last_or_those_named(logs) -> None:
     import battlab
     from battlab.diagnose.workflow import split
     from battlab.identify.experiments import experiments_from_data
@@ -162,6 +162,8 @@ def test_one_file_holds_out_its_final_30_percent_several_the_last(logs) -> None:
     assert name == "b" and [p.train for p in parts] == [exps[0].voltage.size, 0]
     parts, name = split([("a", exps), ("b", exps)], "a")
     assert name == "a" and [p.train for p in parts] == [0, exps[0].voltage.size]
+    parts, name = split([("a", exps), ("b", exps), ("c", exps)], ("a", "c"))
+    assert name == "a + c" and [p.train for p in parts] == [0, exps[0].voltage.size, 0]
 
 
 def test_more_charge_than_the_cell_holds_is_an_input_error(tmp_path) -> None:
