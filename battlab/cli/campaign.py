@@ -137,6 +137,7 @@ def campaign(
                 f"campaign: the truth's extensions {sorted(truth.extensions)} and the start cell's "
                 f"{sorted(start.extensions)} are different models; start from the base cell"
             )
+        _check_truth_in_reach(truth)
     check_output_path(output, directory=True, create=True)
     display = StageDisplay(quiet=quiet)
     try:
@@ -172,6 +173,21 @@ def campaign(
         if rounds:
             found += f" ({len(rounds)} deciding experiment(s), {dg.get('lab_hours', 0):.1f} lab h)"
         click.echo(f"  diagnosis: {found}")
+
+
+def _check_truth_in_reach(truth: Any) -> None:
+    """A hidden extension whose value lies outside the range a fit searches cannot be found by the campaign (the
+    extended model cannot represent it): one line before anything runs."""
+    from battlab import parameters
+
+    for key in truth.extensions:
+        for p in parameters.EXTENSIONS[key]:
+            v = float(truth.value(p.qualified))
+            if not p.lower <= v <= p.upper:
+                raise InputError(
+                    f"campaign: the truth's {p.qualified} = {v:g} {p.unit} lies outside the range a fit searches "
+                    f"({p.lower:g} to {p.upper:g} {p.unit}): the extended model cannot represent it"
+                )
 
 
 @contextlib.contextmanager

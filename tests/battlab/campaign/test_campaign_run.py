@@ -85,6 +85,11 @@ def test_bad_arguments_are_one_line(tmp_path: Path) -> None:
     cfg.write_text("[fit]\nmax_evals = 3\n")
     r = _invoke("--config", str(cfg), "-o", str(tmp_path / "c"))
     assert r.exit_code == 2 and "fit.max_evals: unknown key" in r.output
+    # a hidden effect no fit could reach: refused before the campaign directory is made
+    cfg.write_text('[campaign]\ntruth = "nca18650-true+hysteresis:M_n=0.9"\n')
+    r = _invoke("--config", str(cfg), "--quick", "-o", str(tmp_path / "c"))
+    assert r.exit_code == 2 and "hysteresis.M_n = 0.9 V lies outside the range a fit searches" in r.output, r.output
+    assert len(r.output.strip().splitlines()) == 1 and not (tmp_path / "c").exists()
 
 
 def test_unreachable_instruments_are_one_line_before_the_directory_is_made(tmp_path: Path) -> None:
