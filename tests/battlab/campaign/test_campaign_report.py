@@ -74,3 +74,22 @@ def test_the_equilibrium_section_says_when_its_intervals_cannot_be_trusted(tmp_p
     view = View(tmp_path, summaries, {}, None, tmp_path)
     html = render("t", [equilibrium(view)])
     assert "<th>trusted</th>" in html and "intervals not to be trusted: the equilibrium fit did not converge" in html
+
+
+def test_the_diagnosis_section_shows_each_cause_extended_and_the_one_kept(tmp_path: Path) -> None:
+    from battlab.campaign.report import View, diagnosis
+
+    tried = [
+        {"cause": "current_sensor", "rmse_before_mV": 3.05, "rmse_after_mV": 8.81, "cell": "x", "kept": False},
+        {"cause": "hysteresis", "rmse_before_mV": 20.91, "rmse_after_mV": 5.71, "cell": "y", "kept": True},
+    ]
+    table = {"before": {"1C discharge": 39.31}, "after": {"1C discharge": 10.74}}
+    dg = {"cause": "hysteresis", "verdict": "v", "extended": tried, "validation_rmse_mV": table}
+    dg["extension_gain"] = {"cause": "hysteresis", "rmse_before_mV": 20.91, "rmse_after_mV": 5.71}
+    html = render("t", [diagnosis(View(tmp_path, {"diagnosis": dg}, {}, None, tmp_path))])
+    assert "causes extended (extend step)" in html and "<td>current_sensor</td>" in html
+    assert "before and after the hysteresis extension" in html
+    # nothing kept: the caption names the cause extended, not None
+    dg0 = dg | {"cause": None, "extended": tried[:1], "extension_gain": {"cause": "current_sensor"}}
+    html = render("t", [diagnosis(View(tmp_path, {"diagnosis": dg0}, {}, None, tmp_path))])
+    assert "before and after the current_sensor extension" in html and "None" not in html
