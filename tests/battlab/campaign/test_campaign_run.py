@@ -118,7 +118,8 @@ def test_unreachable_instruments_are_one_line_before_the_directory_is_made(tmp_p
 
 
 #: the smallest campaign that still runs every stage: three library profiles, one per group, one noise profile per
-#: direction, two evaluations per fit stage, one constant-current test each for the baseline and validation
+#: direction, two evaluations per fit stage and per fit of a cause in the diagnosis, one constant-current test each
+#: for the baseline and validation
 SMALL = """
 [library]
 ids = [19, 37, 541]
@@ -135,6 +136,8 @@ polish = 0
 c_rates = [-2.0]
 [validation]
 c_rates = [2.0]
+[diagnosis]
+max_evaluations = 2
 """
 
 
