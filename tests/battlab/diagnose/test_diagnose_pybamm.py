@@ -28,7 +28,11 @@ import pybamm_effects as pe  # noqa: E402
 
 #: the CI subset's profile: 1 h of pulses, rests and a drive stretch (the benchmark's are 4 h)
 SHORT = pe.ProfileSpec(21, 0.75, ("UDDS",), drive_share=0.5, duration=3600.0)
-NULL, EFFECTS = "null_1", ("hysteresis_10mV", "electrolyte_de25_k50")
+#: the effect cases the diagnosis must name on the short profile. Not here: ``electrolyte_de25_k50`` (D_e x0.25,
+#: kappa x0.5), which it does not name on 1 h (measured: the training part's residual is 34 x the noise level, but on
+#: the held-out final 18 min the cell as given is already within 1.09 mV, noise 0.97 mV: no fit can win there); it
+#: is named on the benchmark's 4 h profile, where bench_diagnose_pybamm.py measures it
+NULL, EFFECTS = "null_1", ("hysteresis_10mV",)
 
 
 def short(name: str) -> pe.Case:
@@ -132,18 +136,8 @@ def test_the_diagnosis_names_nothing_on_pybamms_plain_dfn(made, tmp_path) -> Non
     assert summary["cause"] is None, (summary["cause"], summary["verdict"], summary["extension_gain"])
 
 
-#: effect cases the diagnosis does not name yet, with why (measured on the 1 h profile)
-NOT_YET = {
-    "electrolyte_de25_k50": "the training part's residual is 34 x the noise level, but on the held-out final 18 min "
-    "the cell as given is already within 1.09 mV (noise 0.97 mV): no fit can win there (named on the 4 h profile)",
-}
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "name",
-    [pytest.param(n, marks=pytest.mark.xfail(strict=False, reason=NOT_YET[n])) if n in NOT_YET else n for n in EFFECTS],
-)
+@pytest.mark.parametrize("name", EFFECTS)
 def test_the_diagnosis_names_the_hidden_cause_of_pybamm_data(name, made, tmp_path) -> None:
     """The catalog key of the hidden effect is the summary's ``cause``, and its fit predicts the held-out part at
     least 30 % better than the better of the unrefitted cell and the base refit (than the cell, for a cause named as
