@@ -9,10 +9,15 @@ to refit the base."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pytest
 
 from protocols.errors import InputError
+
+if TYPE_CHECKING:
+    from battlab.diagnose.report import DiagnosisReport
 
 
 @pytest.fixture(scope="module")
@@ -23,6 +28,14 @@ def logs(tmp_path_factory: pytest.TempPathFactory, hidden_effect_csv) -> dict[st
         "current_sensor": hidden_effect_csv(d / "offset.bdf.csv", "current_sensor", offset=0.02),
         "contact_resistance": hidden_effect_csv(d / "rc.bdf.csv", "contact_resistance", R_c=0.010),
     }
+
+
+@pytest.fixture(scope="module")
+def null_report(logs) -> DiagnosisReport:
+    """The diagnosis of the noise-only log, made once for the tests that read it."""
+    from battlab.diagnose.workflow import DiagnoseOptions, diagnose
+
+    return diagnose(DiagnoseOptions([logs["null"]], "nca18650"))
 
 
 @pytest.mark.slow
@@ -68,11 +81,10 @@ def test_a_hidden_ocv_offset_is_found_although_two_alike_causes_score_higher(hid
         assert told["kind"] == "pulse" and "rest" in told["experiment"]
 
 
-def test_noise_only_names_no_cause(logs) -> None:
+def test_noise_only_names_no_cause(null_report) -> None:
     from battlab.diagnose.directions import DEFAULT_CAUSES
-    from battlab.diagnose.workflow import DiagnoseOptions, diagnose
 
-    rep = diagnose(DiagnoseOptions([logs["null"]], "nca18650"))
+    rep = null_report
     s = rep.summary
     assert s["cause"] is None and not any(r["passes"] for r in s["ranking"]), rep.text()
     assert s["extension_gain"]["rmse_after_mV"] is None and s["cannot_tell"] == []
@@ -80,16 +92,15 @@ def test_noise_only_names_no_cause(logs) -> None:
     assert {r["cause"] for r in s["ranking"]} == set(DEFAULT_CAUSES)  # every cause the catalog score-tests
 
 
-def test_no_cause_says_which_causes_are_too_small_to_see_and_from_what_size_they_would_show(logs) -> None:
+def test_no_cause_says_which_causes_are_too_small_to_see_and_from_what_size_they_would_show(null_report) -> None:
     """On 30 min of driving with noise only, a capacity fade's rates and electrolyte slopes of typical size are far
     below what the data would detect (measured: side current 73 mA against 1.5 mA typical, slopes 10-18 per 1000
     mol/m³ against 0.4): the summary lists the electrolyte as undetectable with the smallest detectable size and the
     experiment that would show them; a current-sensor offset of typical size would be seen and is not listed. The
     contract keys stay."""
     from battlab.diagnose.directions import TYPICAL
-    from battlab.diagnose.workflow import DiagnoseOptions, diagnose
 
-    rep = diagnose(DiagnoseOptions([logs["null"]], "nca18650"))
+    rep = null_report
     s = rep.summary
     assert {"cause", "ranking", "extension_gain"} <= set(s) and s["cause"] is None
     assert {"rmse_before_mV", "rmse_after_mV", "held_out"} <= set(s["extension_gain"])
