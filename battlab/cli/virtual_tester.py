@@ -14,6 +14,7 @@ import json
 import signal
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 import click
@@ -157,30 +158,41 @@ def serve(
     urls: dict[str, Any] = {"cycler": lab.cycler_url, "chamber": lab.chamber_url, "espec": lab.espec_url}
     if rtu_port is not None:
         urls["chamber_rtu"] = lab.rtu_url
-    if as_json:
-        click.echo(json.dumps({**urls, "speed": speed, "physics": physics_name, "dialect": dialect}))
-    else:
-        click.echo(f"virtual tester at {speed:g}x real time, physics: {physics_name}")
-        for name, url in urls.items():
-            click.echo(f"  {name:<12}{url}")
-        click.echo("Ctrl-C stops it.")
-    _serve_until_stopped(lab, duration)
+
+    def announce() -> None:
+        if as_json:
+            click.echo(json.dumps({**urls, "speed": speed, "physics": physics_name, "dialect": dialect}))
+        else:
+            click.echo(f"virtual tester at {speed:g}x real time, physics: {physics_name}")
+            for name, url in urls.items():
+                click.echo(f"  {name:<12}{url}")
+            click.echo("Ctrl-C stops it.")
+
+    _serve_until_stopped(lab, duration, announce)
     click.echo(f"stopped after {lab.clock.now():.0f} virtual s")
 
 
-def _serve_until_stopped(lab: VirtualLab, duration: float | None) -> None:
-    def on_term(signum: int, frame: object) -> None:
+def _serve_until_stopped(lab: VirtualLab, duration: float | None, announce: Callable[[], None]) -> None:
+    """``announce()`` the lab, then serve it until Ctrl-C (SIGINT), SIGTERM or ``duration`` real seconds.
+
+    Both signals are handled here, from before the announcement, not left to Python's default: a process started
+    from a background job of a non-interactive shell inherits SIGINT ignored, and Python then installs no
+    KeyboardInterrupt for it, so the served lab ran on through the Ctrl-C of whoever started it."""
+
+    def on_stop(signum: int, frame: object) -> None:
         raise KeyboardInterrupt
 
-    previous = signal.signal(signal.SIGTERM, on_term)
+    previous = {s: signal.signal(s, on_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     deadline = None if duration is None else time.monotonic() + duration
     try:
+        announce()
         while deadline is None or time.monotonic() < deadline:
             time.sleep(0.05 if deadline is None else max(0.0, min(0.05, deadline - time.monotonic())))
     except KeyboardInterrupt:
         pass
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for s, h in previous.items():
+            signal.signal(s, h)
         lab.stop()
 
 
