@@ -25,6 +25,14 @@ def pytest_configure(config: pytest.Config) -> None:
         raise pytest.UsageError(f"CI: shared data not found at {DATA} (set BATTLAB_DATA)")
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The files with a slow test first, each file's tests kept together and in order. The workers take whole
+    files in this order (``--no-loadscope-reorder``; xdist's own order, most tests first, left the long files with
+    few tests to the end, where one worker ran them while the other had nothing left)."""
+    slow = {item.path for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda item: item.path not in slow)  # stable
+
+
 #: the reference packages some tests compare against (top-level import name), and how to install each
 REFERENCES = {
     "pybamm": 'PyBaMM, the reference DFN: pip install -e ".[test]"',
