@@ -60,7 +60,8 @@ def run_case(name: str, out: Path, rerun: bool) -> dict[str, Any]:
         r = subprocess.run([*cmd, "--config", str(cfg), "-o", str(d)], capture_output=True, text=True)
         (out / f"{name}.log").write_text(r.stdout + r.stderr)
         if r.returncode != 0:
-            return {"case": name, "expected": expected, "error": (r.stderr or r.stdout).strip().splitlines()[-1:]}
+            lines = (r.stderr + r.stdout).strip().splitlines()
+            return {"case": name, "expected": expected, "error": next((x for x in lines if x.startswith("error")), "")}
     s = json.loads(summary.read_text())
     dg = next(st["summary"] for st in s["stages"] if st["name"] == "diagnosis")
     g = dg.get("extension_gain") or {}
