@@ -206,7 +206,9 @@ class SimulatedCycler:
                     on = False
                 elif t_wd < t_next:
                     t_next = t_wd
-            current = self.current if on else 0.0
+            # with the output off no current flows; a physics whose input is a logged current with a sensor offset
+            # says which input that is (an open circuit reads the offset)
+            current = self.current if on else getattr(self.physics, "open_circuit_current_A", 0.0)
             dt = t_next - self.t
             if not self.model_failed:
                 try:

@@ -1,5 +1,6 @@
 """The virtual tester's DFN cell (battlab.lab.virtual over battlab.model.live.LiveCell): a step that does not
-converge is retried in smaller pieces; one that fails all the same leaves the cell as it was."""
+converge is retried in smaller pieces; one that fails all the same leaves the cell as it was; a cell whose current
+sensor reads an offset is not drained through an open circuit."""
 
 from __future__ import annotations
 
@@ -49,3 +50,24 @@ def test_a_step_that_fails_in_every_piece_leaves_the_cell_as_it_was() -> None:
     assert live.t == t and live.voltage == v and np.array_equal(live._y, y)
     v_rest, _ = physics.step(0.0, 10.0, 298.15)
     assert v_rest < v and live.t == t + 10.0
+
+
+def test_an_offset_current_sensor_drains_the_cell_at_0_a_but_not_through_an_open_circuit() -> None:
+    """The model's input is the logged current: at a 0 A setpoint a cycler whose sensor reads 15 mA too high drives
+    15 mA out of the cell (the voltage falls), with its output off nothing flows and the cell rests."""
+    from battlab.cell import Cell
+    from drivers.virtual.instruments import SimulatedCycler
+    from drivers.virtual.noise import NOISELESS
+
+    cell = Cell.load("nca18650-true").with_extension("current_sensor", offset=0.015, gain=0.005)
+    ends = {}
+    for output in (True, False):
+        c = SimulatedCycler(make_cell_physics(cell), noise=NOISELESS, rng=np.random.default_rng(0), max_step_s=300.0)
+        c.reset_cell(0.5, 298.15)
+        c.set_current(0.0)
+        c.set_output(output)
+        start = c.v_true
+        c.advance(36000.0, 298.15)
+        ends[output] = c.v_true - start
+    assert ends[True] < -0.04  # 150 mAh out in 10 h: about 55 mV lower
+    assert abs(ends[False]) < 1e-3  # the start carried the 15 mA (its ohmic drop, 0.7 mV), then nothing flows
