@@ -135,15 +135,20 @@ def candidates(summary: dict[str, Any]) -> list[str]:
     ``extension_gain.metric_before``) without clearing the noise margin, the best first, at most :data:`MAX_EXTEND`."""
     if summary["cause"] is not None:
         return [summary["cause"]]
+    gains = _held_out_gains(summary)
+    return sorted((k for k, g in gains.items() if g >= MIN_GAIN), key=lambda k: -gains[k])[:MAX_EXTEND]
+
+
+def _held_out_gains(summary: dict[str, Any]) -> dict[str, float]:
+    """Per cause the diagnosis fitted: its fit's held-out gain over the baseline (noise-normalised errors)."""
     ref = summary["extension_gain"].get("metric_before")
     if not ref:
-        return []
-    gains = {
+        return {}
+    return {
         c["cause"]: 1.0 - c["held_out_metric"] / ref
         for c in summary["confirmations"]
         if c["cause"] != "base" and c.get("held_out_metric") is not None
     }
-    return sorted((k for k, g in gains.items() if g >= MIN_GAIN), key=lambda k: -gains[k])[:MAX_EXTEND]
 
 
 #: a cause named after a deciding experiment is kept when the extended cell predicts the validation tests no worse
@@ -179,7 +184,7 @@ def kept(
 def _short_of_z(key: str, summary: dict[str, Any]) -> str:
     """The verdict for a cause the diagnosis did not name but whose fit won the held-out data by the margin."""
     fit = next(c for c in summary["confirmations"] if c["cause"] == key)
-    g = 1.0 - fit["held_out_metric"] / summary["extension_gain"]["metric_before"]
+    g = _held_out_gains(summary)[key]
     return (
         f"{key}: its diagnosis fit predicted the held-out data {100 * g:.0f} % better than the "
         f"{summary['extension_gain']['baseline']} at {fit['z_vs_baseline']:.1f} standard errors (short of the noise "
@@ -220,11 +225,12 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
         cause, verdict = None, s["verdict"]
         gain: dict[str, Any] = {"rmse_before_mV": None, "rmse_after_mV": None, "held_out": list(logs)}
         table: dict[str, Any] = {}
+        before = Cell.load(str(cell_path))
         for k, key in enumerate(candidates(s)):
             ctx.progress(0, 0, f"extending the OED cell with {key} and scoring it on the validation tests")
             name = "extended.bpx.json" if k == 0 else f"extended_{key}.bpx.json"
             extended = _extend(camp, ctx, key, cell_path, [*train, *decided], preps, out / name)
-            cells = {"before": Cell.load(str(cell_path)), "after": Cell.load(str(extended))}
+            cells = {"before": before, "after": Cell.load(str(extended))}
             rmse = score(logs, cells, truth, out / ("validation" if k == 0 else f"validation_{key}"))["rmse_mV"]
             mean = {c: sum(v.values()) / len(v) for c, v in rmse.items()}
             row = {"cause": key, "rmse_before_mV": mean["before"], "rmse_after_mV": mean["after"], "cell": name}

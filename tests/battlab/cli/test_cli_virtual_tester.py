@@ -35,8 +35,6 @@ def test_serve_in_a_process_then_ctrl_c() -> None:
         'trap "" INT; exec "$@"',  # SIGINT ignored, and inherited through exec
         "sh",
         sys.executable,
-        "-X",
-        "faulthandler",  # a hang is reported with every thread's stack (SIGABRT below)
         "-c",
         "from battlab.cli import main; main()",
         "virtual-tester",
@@ -74,12 +72,7 @@ def test_serve_in_a_process_then_ctrl_c() -> None:
         proc.send_signal(signal.SIGINT)
         # alone it stops within 0.2 s; when serve left Ctrl-C to Python's default, a lab started with SIGINT ignored
         # ran on to its --duration
-        try:
-            out, err = proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.send_signal(signal.SIGABRT)
-            _, stacks = proc.communicate(timeout=10)
-            pytest.fail(f"Ctrl-C did not stop the served lab within 30 s; its threads:\n{stacks[-6000:]}")
+        out, err = proc.communicate(timeout=30)
         assert proc.returncode == 0, err
         assert "stopped after" in out
     finally:
