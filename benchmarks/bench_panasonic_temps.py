@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 import battlab
-from battlab.identify.experiments import resample
+from battlab.identify.experiments import read_delay, resample
 from battlab.io.data import NET_CAPACITY, SURFACE, load_data
 from protocols.profile import Profile
 
@@ -57,7 +57,9 @@ def conditions(path: Path) -> tuple[float, float]:
 
 def profile_of(path: Path, dt: float) -> tuple[Profile, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The logged test as a profile from its first sample, with the logged voltage [V], surface temperature [K],
-    a mask of the samples to score (not inside a filled gap) and the discharged charge [Ah] at each sample."""
+    a mask of the samples to score (not inside a filled gap) and the discharged charge [Ah] at each sample. The
+    voltage is read ``read_delay`` after each grid time: the drive tests log at 10 Hz and step their current between
+    two readings, so the reading at a grid time is the left limit of the step there."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         d = load_data(path)
@@ -68,7 +70,8 @@ def profile_of(path: Path, dt: float) -> tuple[Profile, np.ndarray, np.ndarray, 
         ah = np.asarray(d.columns[NET_CAPACITY], float)
         for k in gaps:
             i[k] = (ah[k + 1] - ah[k]) * 3600.0 / (t[k + 1] - t[k])
-    tt, ii, vv = resample(t, i, v, dt)
+    lag = read_delay(t, dt)
+    tt, ii, vv = resample(t, i, v, dt, lag)
     grid = tt + t[0]
     temp_g = np.interp(grid, t, temp) if temp is not None else np.full(grid.size, np.nan)
     scored = np.ones(grid.size, bool)

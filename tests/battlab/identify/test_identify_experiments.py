@@ -162,3 +162,49 @@ def test_the_last_resampled_current_is_the_one_logged_with_the_last_voltage() ->
     loaded = ii < -6.0
     assert loaded.sum() == 300 and np.all(vv[loaded] < 3.0) and np.all(vv[~loaded] > 3.0)
     assert ii[-1] == pytest.approx(0.0, abs=0.02) and vv[-1] == pytest.approx(3.32, abs=1e-3)
+
+
+def _fixed_rate_drive_log(marked: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A 1 Hz drive current logged at 10 Hz, each step 4 ms after a reading (the Panasonic drive tests' readings
+    fall at their steps), on an ohmic cell (3.7 V + 20 mΩ × I): each reading logs the current of its instant.
+    ``marked``: the log also holds the left and right limits of every step 1 ms apart (as battlab's run logs do)."""
+    steps = np.random.default_rng(3).uniform(-8.0, 4.0, 120)
+    t = 0.096 + np.arange(1190) * 0.1
+    if marked:
+        t = np.sort(np.r_[np.arange(1.1, 119.0) - 0.0005, np.arange(1.1, 119.0) + 0.0005, t])
+    current = steps[np.floor(t - 0.1).astype(int) + 1]
+    return t, current, 3.7 + 0.02 * current
+
+
+def test_a_fixed_rate_log_is_read_after_the_step_it_steps_between_readings() -> None:
+    """A tester that logs at a fixed rate steps its current between two readings, so the reading at a grid time is
+    the left limit of the step there (the bin before's voltage): the voltage is read one logging interval after it,
+    and paired with the bin's current it is the ohmic cell's, where the reading at the grid time is off by the
+    step's ohmic jump. A log that marks its steps is read at the grid time."""
+    from battlab.identify.experiments import read_delay, resample
+
+    t, current, voltage = _fixed_rate_drive_log(marked=False)
+    lag = read_delay(t, 1.0)
+    assert lag == pytest.approx(0.1)
+    tt, ii, vv = resample(t, current, voltage, 1.0, lag)
+    inner = slice(1, -2)  # bins whole inside the log
+    assert (
+        np.max(np.abs(vv[inner] - (3.7 + 0.02 * ii[inner]))) <= 0.02 * 0.1 * 12.0
+    )  # a reading's 0.1 s held into the bin
+    _, _, v_at = resample(t, current, voltage, 1.0)
+    assert np.max(np.abs(v_at[inner] - (3.7 + 0.02 * ii[inner]))) > 0.1  # the left limit: off by the jump
+    assert read_delay(t, 0.2) == 0.0  # read no faster than a quarter of the grid step: as logged
+    marked = _fixed_rate_drive_log(marked=True)
+    assert read_delay(marked[0], 1.0) == 0.0
+
+
+def test_an_experiment_from_a_fixed_rate_log_pairs_each_bins_current_with_its_voltage() -> None:
+    """The experiments a fit and a diagnosis take from a fixed-rate log are read after the step, as ``resample``
+    with ``read_delay`` reads them."""
+    from battlab.io.data import CURRENT, TIME, VOLTAGE, LoggedData
+
+    t, current, voltage = _fixed_rate_drive_log(marked=False)
+    data = LoggedData("drive", {TIME: t, VOLTAGE: voltage, CURRENT: current}, {})
+    (exp,) = experiments_from_data(data, Cell.load("nca18650"), dt=1.0, soc0=0.9, ambient=298.15)
+    ohmic = 3.7 + 0.02 * exp.profile.current[1:-2]
+    assert np.max(np.abs(exp.voltage[1:-2] - ohmic)) <= 0.02 * 0.1 * 12.0
