@@ -16,7 +16,7 @@ per-file ageing (:mod:`battlab.identify.ageing`) each refit also fits its files'
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -36,6 +36,11 @@ ACTIVATION: dict[str, str] = {
 E_RANGE = (0.0, 150e3)
 #: [K] data whose ambient is this close to T_ref are reference data; others are grouped to the nearest kelvin
 REF_TOL = 5.0
+#: [θ̄] how far a refit's search box reaches beyond each parameter's built-in range (``fit.Options.widen``): a
+#: per-temperature value is the reference value that the present activation energy carries to the data's ambient,
+#: not a value at T_ref, so the reference ranges do not hold it (the Panasonic cell at 0 °C: κ_scale stopped on its
+#: lower bound 0.5 with E_κ 35 kJ/mol, and the energies came out too low for the cold tests)
+REFIT_WIDEN = 1.0
 
 
 @dataclass
@@ -106,12 +111,13 @@ def fit_arrhenius(
     if not groups:
         raise InputError("--arrhenius needs data at an ambient temperature other than T_ref (more than 5 K away)")
     t_ref = float(cell["T_ref"])
+    wide = replace(options, widen=max(options.widen, REFIT_WIDEN))
     values: dict[float, dict[str, float]] = {}
     before: dict[str, float] = {}
     after: dict[str, float] = {}
     aged: dict[str, dict[str, dict[str, object]]] = {}
     for amb, exps in sorted(groups.items()):
-        res = F.fit(cell, exps, names, forward=forward, options=options, ageing=ageing)
+        res = F.fit(cell, exps, names, forward=forward, options=wide, ageing=ageing)
         aged.update(res.extra.get("ageing", {}))
         values[amb] = {n: float(res.cell[n]) for n in names}
         before.update(res.rmse_before_mV)

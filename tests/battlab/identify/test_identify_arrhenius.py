@@ -46,3 +46,16 @@ def test_arrhenius_without_activated_parameters_or_other_temperatures_is_one_cle
         fit_arrhenius(cell, {273.1: []}, ["R_f_n"], forward=fm, options=F.Options())
     with pytest.raises(InputError, match="other than T_ref"):
         fit_arrhenius(cell, {}, ["kappa_scale"], forward=fm, options=F.Options())
+
+
+def test_a_refit_is_not_held_to_the_reference_range() -> None:
+    """A per-temperature value is the reference value that the present activation energy carries to that ambient:
+    with κ_scale near its lower bound (0.5) and a true E_κ 25 kJ/mol above the start's, the 0 °C refit needs κ_scale
+    0.22, below the bound, and the activation energy is recovered instead of stopping there."""
+    cell = battlab.Cell.load("nca18650").with_values(kappa_scale=0.55)
+    truth = cell.with_values(E_kappa=float(cell["E_kappa"]) + 25e3)
+    _, groups = split_by_ambient([_experiment(truth, 273.15)], 298.15)
+    fm = ForwardModel(cell, v_margin=0.15)
+    arr = fit_arrhenius(cell, groups, ["kappa_scale"], forward=fm, options=F.Options(max_nfev=12))
+    assert next(iter(arr.values.values()))["kappa_scale"] < 0.5
+    assert arr.energies["E_kappa"] == pytest.approx(float(truth["E_kappa"]), rel=0.05)
