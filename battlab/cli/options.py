@@ -330,6 +330,7 @@ FIELD_BOUNDS = {
     "dt": DT,
     "max_iter": EVALUATIONS,
     "polish": Bounds("the number of evaluations", low=0.0),
+    "widen": Bounds("the widening of the ranges", low=0.0, high=2.0),
     "rated_capacity": CAPACITY,
 }
 

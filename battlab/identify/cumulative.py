@@ -34,7 +34,8 @@ class FitSettings:
     cannot inform; ``workers``: threads per evaluation (None: one per core; results do not depend on it);
     ``soc_span`` > 0: each experiment's start SOC is fitted within ± ``soc_span`` of its own, from where the last
     stage left it (:func:`battlab.identify.fit.fit`; for measurements whose start SOC is not known exactly: a
-    still-relaxing rest voltage, a full charge that stops a little short of SOC 1)."""
+    still-relaxing rest voltage, a full charge that stops a little short of SOC 1); ``widen``: how far [θ̄] the
+    search box reaches beyond the built-in ranges (:attr:`battlab.identify.fit.Options.widen`)."""
 
     max_evaluations: int = 40
     polish: int = 8
@@ -42,9 +43,10 @@ class FitSettings:
     refuse_uninformed: bool = True
     workers: int | None = None
     soc_span: float = 0.0
+    widen: float = 0.0
 
     def options(self) -> F.Options:
-        return F.Options(max_nfev=self.max_evaluations, polish=self.polish, workers=self.workers)
+        return F.Options(max_nfev=self.max_evaluations, polish=self.polish, workers=self.workers, widen=self.widen)
 
 
 #: a stage whose held electrode ends with D_s, k or R_f at a bound is fitted again from another point of its orbit

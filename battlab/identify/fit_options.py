@@ -91,6 +91,14 @@ class FitOptions:
             "Of the evaluations per stage, those kept for Gauss-Newton steps after the optimiser stops at its limit."
         ),
     )
+    widen: float = field(
+        default=0.0,
+        metadata=_opt(
+            "Let the 18 parameters' search reach beyond their built-in ranges (the paper cell's) by this fraction of "
+            "each range's width on either side (of a log-scaled range, of its decades): a cell of another make need "
+            "not lie inside them; porosities stay below 1 - eps_s.",
+        ),
+    )
     fix_sign: bool = field(default=False, metadata=_opt("Flip a current logged with positive = discharge."))
     #: (target, names) fits of cell values outside the 18 after the stages (:mod:`battlab.identify.values`)
     value_stages: tuple[tuple[str, str], ...] = ()
@@ -145,7 +153,11 @@ class FitOptions:
     def settings(self) -> FitSettings:
         """The cumulative fit's settings (the same defaults as the campaign's)."""
         return FitSettings(
-            max_evaluations=self.max_iter, polish=self.polish, hold_radii=self.hold_radii, soc_span=self.soc_span or 0.0
+            max_evaluations=self.max_iter,
+            polish=self.polish,
+            hold_radii=self.hold_radii,
+            soc_span=self.soc_span or 0.0,
+            widen=self.widen,
         )
 
     def start_cell(self) -> Cell:

@@ -339,3 +339,28 @@ def test_a_measurement_is_fitted_after_its_logged_preparation(tmp_path, prepared
     # fitted from the full charge (SOC 1 - 0.01 at most) before the 0.54 Ah adjustment, not from SOC 0.8 at rest
     (soc,) = summary["start_soc"].values()
     assert 0.99 - 1e-9 <= soc <= 1.0
+
+
+def test_widen_lets_a_cell_of_another_make_leave_the_paper_cells_ranges(tmp_path) -> None:
+    """A cell whose electrolyte conducts at 0.3 of the file's (the built-in range stops at 0.5): the fit stops on the
+    bound, and with ``--widen`` it finds the value."""
+    from battlab.io.data import AMBIENT
+    from protocols.profile import Profile
+
+    truth = battlab.Cell.load("nca18650").with_values(kappa_scale=0.3)
+    t = np.arange(0.0, 1200.0)
+    prof = Profile(t, np.where((t % 200.0) < 60.0, -5.4, 0.0), id="pulses")
+    res = battlab.simulate(truth, prof, soc0=0.8, ambient=298.15)
+    cols = {TIME: t, VOLTAGE: res.voltage, CURRENT: prof.current, AMBIENT: np.full(t.size, 25.0)}
+    p = write_bdf_csv(LoggedData("pulses", cols, {}), tmp_path / "pulses.bdf.csv")
+    found = {}
+    for widen in ("0", "0.5"):
+        out = tmp_path / f"w{widen}.bpx.json"
+        args = ["fit", str(p), "--cell", "nca18650", "--params", "kappa_scale", "--soc0", "0.8", "--widen", widen]
+        r = CliRunner().invoke(main, [*args, "--max-iter", "12", "-o", str(out)])
+        assert r.exit_code == 0, r.output
+        found[widen] = float(battlab.Cell.from_bpx(out)["kappa_scale"])
+    assert found["0"] == pytest.approx(0.5, abs=1e-3)
+    assert found["0.5"] == pytest.approx(0.3, rel=0.02)
+    r = CliRunner().invoke(main, ["fit", str(p), "--cell", "nca18650", "--widen", "3", "-o", str(tmp_path / "x.json")])
+    assert r.exit_code == 2 and "--widen" in r.output and "Traceback" not in r.output
