@@ -23,8 +23,8 @@
 # k_p, R_f_n, kappa_scale, D_e_scale and eps_e_s on bounds (missing structure, not too few evaluations). The
 # written cell, whole test / to 90 % of its charge (benchmarks/bench_panasonic_temps.py): HWFET 25 degC 23.0 / 12.3
 # mV (95 % reached), 10 degC 58.4 / 16.7, 0 degC 52.5 / 33.0; US06 25/10/0 degC 28.9 / 32.5 / 64.3 mV. The refits
-# per ambient give E_k_p and E_D_s_n clipped at 0: the cold tests ran later, on a more aged cell, and the refits
-# take that for temperature.
+# per ambient give E_k_p and E_D_s_n clipped at 0; a capacity per file in them (--per-file-ageing capacity) puts the
+# 0 degC US06 at 1.03 of the 25 degC one, so the fade between the test dates does not explain the cold misfit.
 set -euo pipefail
 if [[ $# -ne 2 ]]; then
     echo "usage: $0 DATA_DIR OUT.bpx.json" >&2
