@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.virtual.noise import NoiseModel
-from drivers.virtual.physics import CellPhysics
+from drivers.virtual.physics import CellPhysics, open_circuit_current
 
 log = logging.getLogger("drivers.virtual")
 
@@ -206,9 +206,7 @@ class SimulatedCycler:
                     on = False
                 elif t_wd < t_next:
                     t_next = t_wd
-            # with the output off no current flows; a physics whose input is a logged current with a sensor offset
-            # says which input that is (an open circuit reads the offset)
-            current = self.current if on else getattr(self.physics, "open_circuit_current_A", 0.0)
+            current = self.current if on else open_circuit_current(self.physics)
             dt = t_next - self.t
             if not self.model_failed:
                 try:

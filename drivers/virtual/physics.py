@@ -55,6 +55,13 @@ class CellPhysics(Protocol):
         ...
 
 
+def open_circuit_current(physics: CellPhysics) -> float:
+    """The current [A] to step ``physics`` at while no current flows through the cell (the cycler's output off): its
+    optional ``open_circuit_current_A`` (a model whose input is a logged current reads a sensor's offset on an open
+    circuit, :class:`battlab.lab.virtual.DFNPhysics`), else 0."""
+    return float(getattr(physics, "open_circuit_current_A", 0.0))
+
+
 #: A hidden effect: wraps one physics object into another (applied in order by the virtual lab).
 Effect = Callable[[CellPhysics], CellPhysics]
 
@@ -153,6 +160,10 @@ class PhysicsWrapper:
     @property
     def voltage(self) -> float:
         return self.inner.voltage
+
+    @property
+    def open_circuit_current_A(self) -> float:
+        return open_circuit_current(self.inner)
 
     def reset(self, soc0: float, T_amb_K: float) -> None:
         self.inner.reset(soc0, T_amb_K)

@@ -58,16 +58,20 @@ def test_an_offset_current_sensor_drains_the_cell_at_0_a_but_not_through_an_open
     from battlab.cell import Cell
     from drivers.virtual.instruments import SimulatedCycler
     from drivers.virtual.noise import NOISELESS
+    from drivers.virtual.physics import ContactResistance
 
     cell = Cell.load("nca18650-true").with_extension("current_sensor", offset=0.015, gain=0.005)
     ends = {}
-    for output in (True, False):
-        c = SimulatedCycler(make_cell_physics(cell), noise=NOISELESS, rng=np.random.default_rng(0), max_step_s=300.0)
+    for output, hidden in ((True, False), (False, False), (False, True)):
+        physics = make_cell_physics(cell)
+        physics = ContactResistance(physics, 0.005) if hidden else physics  # a hidden effect wraps the model
+        c = SimulatedCycler(physics, noise=NOISELESS, rng=np.random.default_rng(0), max_step_s=300.0)
         c.reset_cell(0.5, 298.15)
         c.set_current(0.0)
         c.set_output(output)
         start = c.v_true
         c.advance(36000.0, 298.15)
-        ends[output] = c.v_true - start
-    assert ends[True] < -0.04  # 150 mAh out in 10 h: about 55 mV lower
-    assert abs(ends[False]) < 1e-3  # the start carried the 15 mA (its ohmic drop, 0.7 mV), then nothing flows
+        ends[output, hidden] = c.v_true - start
+    assert ends[True, False] < -0.04  # 150 mAh out in 10 h: about 55 mV lower
+    assert abs(ends[False, False]) < 1e-3  # the start carried the 15 mA (its ohmic drop, 0.7 mV), then nothing flows
+    assert abs(ends[False, True]) < 1e-3  # also under a hidden effect's wrapper
