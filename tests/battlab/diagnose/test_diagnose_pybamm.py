@@ -53,7 +53,9 @@ def made(tmp_path_factory: pytest.TempPathFactory, nmc_bpx: Path) -> Callable[[s
     return make
 
 
-def test_the_profile_stays_in_its_window_with_rests_after_both_directions_and_drive_stretches() -> None:
+def test_the_profile_stays_in_its_window_with_rests_after_both_directions_and_drive_stretches(
+    shared_data: Path,
+) -> None:
     q = pe.nominal_capacity()
     for spec in (*pe.PROFILES, SHORT):
         p = pe.make_profile(q, spec)
@@ -97,7 +99,7 @@ def test_a_log_whose_charge_is_not_pybamms_is_refused() -> None:
         pe.check_charge(case, dataclasses.replace(truth, charge_error_Ah=1e-3), i)
 
 
-def test_a_changed_case_definition_is_made_again(tmp_path: Path) -> None:
+def test_a_changed_case_definition_is_made_again(tmp_path: Path, shared_data: Path) -> None:
     case = pe.CASES["contact_1p5"]
     other = dataclasses.replace(case, effect=pe.Effect("contact", (("R", 1.4e-3),)))
     assert case.key() != other.key()
