@@ -5,6 +5,7 @@ and at the end the estimates with their units and how far each interval can be t
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -79,6 +80,10 @@ class FitDisplay:
             )
             for amb, vals in vf.values.items():
                 click.echo(f"  at {amb - 273.15:.1f} degC: " + ", ".join(f"{k} {v:.4g}" for k, v in vals.items()))
+            after = vf.rmse_after_mV
+            refits = [f"{k} {v:.1f} -> {after.get(k, float('nan')):.1f}" for k, v in vf.rmse_before_mV.items()]
+            if refits:  # a refit that stays far from its data gives a per-temperature value not worth a slope
+                click.echo("  refits' RMSE [mV]: " + ", ".join(refits))
             return
         unit = "mV" if vf.target == "voltage" else "K"
         before = ", ".join(f"{k} {v:.2f}" for k, v in vf.rmse_before.items())
@@ -91,27 +96,39 @@ class FitDisplay:
 
 
 def print_estimates(r: Any, summary: dict[str, Any]) -> None:
-    """The final stage's estimates: value and unit, 95 % interval, and whether it can be trusted (and why not)."""
+    """The final stage's estimates: value and unit, 95 % interval, and whether it can be trusted. A row's note gives
+    its own reasons (a bound, set-identified, ...); what holds for every interval of the fit (not converged, s², a
+    correlated residual) is said once under the table, not on every row."""
     from rich.table import Table
 
     from battlab import parameters
     from battlab.cli.console import make_console
 
-    t = Table(title=f"identified parameters (stage {r.stage}; s² = {r.statistics.s2:.3g})")
+    caveats = list(summary.get("trust", {}).get("caveats", []))
+    t = Table(
+        title=f"identified parameters (stage {r.stage}; s² = {r.statistics.s2:.3g})",
+        caption=("every interval above: " + "; ".join(caveats)) if caveats else None,
+        caption_justify="left",
+    )
     for col in ("parameter", "value", "unit", "95 % interval", "trusted", "note"):
         t.add_column(col)
     entries = summary.get("parameters", {})
     for e in r.statistics.estimates:
         ci = f"[{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]" if e.ci95 else "-"
         entry = entries.get(e.name, {})
-        why = "; ".join(entry.get("untrusted_because", []))
+        why = "; ".join(own_reasons(entry, caveats))
         t.add_row(e.name, f"{e.value:.4g}", parameters.spec(e.name).unit, ci, _yes(entry.get("trusted")), why)
     inv = summary.get("invariants", {})
     for i in r.statistics.invariants:
         entry = inv.get(i.name, {})
-        note = f"invariant {i.definition}" + (f"; {'; '.join(entry['untrusted_because'])}" if entry else "")
+        note = "; ".join([f"invariant {i.definition}", *own_reasons(entry, caveats)])
         t.add_row(i.name, f"{i.value:.4g}", "", f"[{i.ci95[0]:.4g}, {i.ci95[1]:.4g}]", _yes(entry.get("trusted")), note)
     make_console().print(t)
+
+
+def own_reasons(entry: dict[str, Any], caveats: Sequence[str]) -> list[str]:
+    """Why this interval cannot be trusted, less the fit's ``caveats`` (said once for all rows)."""
+    return [w for w in entry.get("untrusted_because", []) if w not in caveats]
 
 
 def _yes(flag: bool | None) -> str:
