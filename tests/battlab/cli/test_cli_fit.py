@@ -11,6 +11,7 @@ from click.testing import CliRunner
 import battlab
 from battlab import parameters as P
 from battlab.cli import main
+from battlab.cli.fit_display import own_reasons
 from battlab.io.bdf import write_bdf_csv
 from battlab.io.data import CURRENT, TIME, VOLTAGE, LoggedData
 from protocols.library import Library
@@ -193,12 +194,22 @@ def test_fit_says_how_good_it_is_and_how_far_to_trust_it(tmp_path, virtual_csv) 
     assert "m2/s" in r.output and "trusted" in r.output
     last = r.output.strip().splitlines()[-2]
     assert last.startswith("fit NOT converged: RMSE") and "of 2 intervals trusted" in last, r.output
+    # what holds for every interval is said once under the table (and in the last line), not on each row
+    table = r.output[r.output.index("identified parameters") : r.output.index(last)]
+    assert table.count("the fit did not converge") == 1 and "every interval above: the fit did not" in table, table
     summary = json.loads((tmp_path / "summary.json").read_text())
     for name in ("R_s_n", "D_s_p"):
         p = summary["parameters"][name]
         assert p["trusted"] is False and "the fit did not converge" in p["untrusted_because"]
     assert summary["trust"]["trusted"] == [] and "the fit did not converge" in summary["trust"]["caveats"]
     assert set(summary["rmse_before_mV"]) == set(summary["rmse_mV"])
+
+
+def test_a_row_gives_its_own_reasons_not_the_fits() -> None:
+    caveats = ["the fit did not converge"]
+    entry = {"untrusted_because": ["the fit did not converge", "at its lower bound (one-sided interval)"]}
+    assert own_reasons(entry, caveats) == ["at its lower bound (one-sided interval)"]
+    assert own_reasons({"untrusted_because": caveats}, caveats) == [] and own_reasons({}, caveats) == []
 
 
 @pytest.mark.parametrize(("crash", "code"), [(RuntimeError("solver diverged"), 1), (KeyboardInterrupt(), 130)])
@@ -364,3 +375,32 @@ def test_widen_lets_a_cell_of_another_make_leave_the_paper_cells_ranges(tmp_path
     assert found["0.5"] == pytest.approx(0.3, rel=0.02)
     r = CliRunner().invoke(main, ["fit", str(p), "--cell", "nca18650", "--widen", "3", "-o", str(tmp_path / "x.json")])
     assert r.exit_code == 2 and "--widen" in r.output and "Traceback" not in r.output
+
+
+def test_fit_arrhenius_gives_the_energies_and_how_well_each_refit_fits(tmp_path) -> None:
+    """Pulses at 25 and 10 °C of a cell whose E_κ is 15 kJ/mol above the start's: the 10 °C refit and the slope give
+    E_κ back, and the terminal says how close each per-temperature refit came to its data (a refit that stays far
+    from its data gives a value not worth a slope)."""
+    from battlab.io.data import AMBIENT
+    from protocols.profile import Profile
+
+    cell = battlab.Cell.load("nca18650")
+    truth = cell.with_values(E_kappa=float(cell["E_kappa"]) + 15e3)
+    t = np.arange(0.0, 1200.0, 1.0)
+    i = np.where((t % 200.0) < 60.0, -2.7, 0.0)
+    paths = []
+    for amb in (25.0, 10.0):
+        res = battlab.simulate(truth, Profile(t, i), soc0=0.8, ambient=273.15 + amb)
+        cols = {TIME: t, VOLTAGE: res.voltage, CURRENT: i, AMBIENT: np.full(t.size, amb)}
+        paths.append(str(write_bdf_csv(LoggedData(f"pulses{amb:g}", cols, {}), tmp_path / f"p{amb:g}.bdf.csv")))
+    out = tmp_path / "cell.bpx.json"
+    r = CliRunner().invoke(
+        main,
+        ["fit", *paths, "--cell", "nca18650", "--soc0", "0.8", "--params", "kappa_scale", "--arrhenius"]
+        + ["--max-iter", "6", "-o", str(out)],
+    )
+    assert r.exit_code == 0, r.output
+    assert "activation energies [kJ/mol]: E_kappa 34.7 ->" in r.output, r.output
+    refits = next(line for line in r.output.splitlines() if line.startswith("  refits' RMSE [mV]: "))
+    assert refits.startswith("  refits' RMSE [mV]: p10 "), refits
+    assert float(battlab.Cell.load(str(out))["E_kappa"]) == pytest.approx(float(truth["E_kappa"]), rel=0.1)
