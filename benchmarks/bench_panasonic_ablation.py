@@ -9,6 +9,7 @@ refitted around the change, so a row shows what that group contributes inside th
 it would reach):
 
 - contact resistance: the contact-resistance extension off (its R_c on top of the fixed 15 mOhm; fit.sh step 3);
+- solid diffusion: the stoichiometry-dependent D_s± off (D_s± at their half-lithiation values everywhere; step 3);
 - ageing: the cell at the date of its OCV test instead of the 25 degC drive tests' (capacity / ``--aged-by``,
   step 2);
 - activation energies: all fitted ones -> the built-in nominal cell's (step 4), and each one on its own;
@@ -46,6 +47,8 @@ def variants(cell: battlab.Cell, nominal: battlab.Cell, aged_by: float = 1.0) ->
         rows.append(("contact-resistance extension off", cell.without_extension("contact_resistance")))
     else:
         rows.append(("R_c -> 0", cell.with_values(R_c=0.0)))
+    if "solid_diffusion" in cell.extensions:
+        rows.append(("stoichiometry-dependent D_s off", cell.without_extension("solid_diffusion")))
     if aged_by != 1.0:
         why = "ablation: the cell at its OCV test's date"
         rows.append(
