@@ -45,10 +45,25 @@ NAMES: tuple[str, ...] = tuple(SPECS)
 #: Table 4 / 11 equilibrium parameters (identified from the OCV test, not normalised).
 EQUILIBRIUM_TRUTH: dict[str, float] = {"eps_s_n": 0.5438895, "eps_s_p": 0.6663649, "n_Li": 0.1406}
 
-#: Values of a cell that the compiled model takes as inputs beside θ̄: the equilibrium fit moves them (the
-#: electrode moles through ε_s±, and the area A where they need more room), and cells that differ only in them
-#: share one compiled model instead of compiling one per trial point.
-MODEL_INPUTS: tuple[str, ...] = ("A", "eps_s_n", "eps_s_p")
+#: Values of a cell that the compiled model takes as inputs beside θ̄, so that cells that differ only in them share
+#: one compiled model instead of compiling one per trial point: the equilibrium fit moves the electrode moles
+#: (through ε_s±, and the area A where they need more room); a thermal fit the heat capacities and transfer
+#: coefficients (B1–B3); an Arrhenius fit the activation energies (B5).
+MODEL_INPUTS: tuple[str, ...] = (
+    "A",
+    "eps_s_n",
+    "eps_s_p",
+    "C1",
+    "C2",
+    "h12",
+    "h2a",
+    "E_D_s_n",
+    "E_D_s_p",
+    "E_k_n",
+    "E_k_p",
+    "E_D_e",
+    "E_kappa",
+)
 #: Values the model's equations never read (the start state is made from them in Python): the cyclable lithium
 #: and the stoichiometry window.
 START_STATE_ONLY: tuple[str, ...] = ("n_Li", "sto_n_0", "sto_n_100", "sto_p_0", "sto_p_100")

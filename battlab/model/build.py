@@ -3,8 +3,9 @@ builds it with ``stepper.c`` into one shared library (:func:`library`), cached o
 (default ``~/.cache/battlab``) by a hash of the generated source.
 
 A fit that changes θ̄ never recompiles (θ̄ is an input) and cells whose differences do not reach the equations share
-one library; the values an equilibrium fit moves (the electrode moles through ε_s±, the area:
-:data:`battlab.parameters.MODEL_INPUTS`) are inputs too, passed after θ̄. A small index file maps what the source is
+one library; the values the equilibrium, thermal and Arrhenius fits move (the electrode moles through ε_s±, the area,
+the heat capacities and transfer coefficients, the activation energies: :data:`battlab.parameters.MODEL_INPUTS`) are
+inputs too, passed after θ̄. A small index file maps what the source is
 made from (the cell's values except θ̄ and those inputs, mesh, options, the model's source files, CasADi's version,
 compiler flags, processor) to that library, so a process that meets a known model loads it without generating the
 code again.

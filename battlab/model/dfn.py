@@ -256,7 +256,7 @@ class DFN:
 
     def activation(self, c: Context, key: str) -> ca.SX | float:
         """The activation energy ``key`` of B5 [J/mol]: the cell's, as the extensions change it."""
-        E: ca.SX | float = float(self.cell[key])
+        E: ca.SX | float = c.value(key)
         for ext in self.options.extensions:
             E = ext.activation(c, key, E)
         return E
@@ -412,9 +412,8 @@ class DFN:
     def thermal(self, c: Context) -> None:
         """B1–B3: two-node lumped thermal model with Bernardi's heat Q = I (U_bulk − V) − I T₁ ∂U_bulk/∂T (the
         Arrhenius law B5 enters the blocks above); sets Q, dT1, dT2 (zero when isothermal)."""
-        cell = self.cell
         th: dict[str, ca.SX | float] = {"dUdT": c.dUdT_bulk}
-        th |= {k: float(cell[k]) for k in ("C1", "C2", "h12", "h2a")}
+        th |= {k: c.value(k) for k in ("C1", "C2", "h12", "h2a")}
         for ext in self.options.extensions:
             th = ext.heat(c, th)
         c.Q = c.I_dis * (c.U_bulk - c.V) - c.I_dis * c.T1 * th["dUdT"]

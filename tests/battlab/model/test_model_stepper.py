@@ -147,19 +147,31 @@ def test_cells_differing_in_identified_parameters_share_the_compiled_model(cell:
 
 
 @pytest.mark.slow
-def test_cells_differing_in_electrode_moles_and_area_share_the_library_and_keep_their_own_values(
-    cell: battlab.Cell,
-) -> None:
-    """The equilibrium fit moves ε_s± and the area (and with them n_Li and the stoichiometry window): the compiled
-    model takes those as inputs, so its trial cells load one library instead of compiling one each, and each runs
-    with its own values: the same voltage, temperature and sensitivities as the CasADi stepper, which builds its
-    functions with the cell's numbers in them."""
+def test_cells_differing_in_the_model_inputs_share_the_library_and_keep_their_own_values(cell: battlab.Cell) -> None:
+    """The equilibrium fit moves ε_s± and the area (and with them n_Li and the stoichiometry window), a thermal fit
+    the heat capacities and transfer coefficients, an Arrhenius fit the activation energies: the compiled model takes
+    those as inputs, so its trial cells load one library instead of compiling one each, and each runs with its own
+    values (at 10 °C, where the activation energies act): the same voltage, temperature and sensitivities as the
+    CasADi stepper, which builds its functions with the cell's numbers in them."""
     from battlab.identify.ocv_model import cell_with_moles
 
     moved = cell_with_moles(
         cell, 1.03 * cell.electrode_moles("n"), 0.97 * cell.electrode_moles("p"), 1.01 * cell.lithium_moles()
     )
-    moved = moved.with_values(A=1.1 * float(moved["A"]))
+    moved = moved.with_values(
+        A=1.1 * float(moved["A"]),
+        C1=0.7 * float(cell["C1"]),
+        C2=1.2 * float(cell["C2"]),
+        h12=0.8 * float(cell["h12"]),
+        h2a=1.5 * float(cell["h2a"]),
+        E_kappa=float(cell["E_kappa"]) + 10e3,
+        E_D_e=float(cell["E_D_e"]) - 10e3,
+        E_D_s_n=float(cell["E_D_s_n"]) + 5e3,
+        E_D_s_p=float(cell["E_D_s_p"]) - 5e3,
+        E_k_n=float(cell["E_k_n"]) + 5e3,
+        E_k_p=float(cell["E_k_p"]) - 5e3,
+    )
+    assert set(parameters.MODEL_INPUTS) >= {"A", "eps_s_n", "C1", "h2a", "E_kappa", "E_k_p"}
     assert moved.structure_hash() == cell.structure_hash() and moved.static_hash() != cell.static_hash()
     first, second = solver.native_stepper(cell, Mesh(), False), solver.native_stepper(moved, Mesh(), False)
     assert first is not second and first.lib._name == second.lib._name  # one library, two cells
@@ -167,10 +179,12 @@ def test_cells_differing_in_electrode_moles_and_area_share_the_library_and_keep_
     prof = _pulses()
     names = ["eps_e_n", "D_s_p", "k_n"]
     fixed = solver.Settings(adaptive=False)
-    a = battlab.simulate(moved, prof, soc0=0.6, sensitivities=names, backend="native", settings=fixed)
-    b = battlab.simulate(moved, prof, soc0=0.6, sensitivities=names, backend="casadi", settings=fixed)
-    base = battlab.simulate(cell, prof, soc0=0.6, backend="native", settings=fixed)
+    run = dict(soc0=0.6, ambient=283.15, settings=fixed)
+    a = battlab.simulate(moved, prof, sensitivities=names, backend="native", **run)
+    b = battlab.simulate(moved, prof, sensitivities=names, backend="casadi", **run)
+    base = battlab.simulate(cell, prof, backend="native", **run)
     assert np.abs(base.voltage - a.voltage).max() > 1e-3  # the values reach the equations
+    assert np.abs(base.T_surface - a.T_surface).max() > 1e-3
     np.testing.assert_allclose(a.voltage, b.voltage, atol=1e-9)
     np.testing.assert_allclose(a.T_surface, b.T_surface, atol=1e-9)
     np.testing.assert_allclose(a.sensitivities, b.sensitivities, atol=1e-7)
