@@ -19,17 +19,17 @@
 #    10 degC one carries the values, and needs its 16 evaluations to come from 114 to 62 mV).
 # 5. Heat capacity (C1 and C2 by one factor) and heat transfer to the ambient from the logged surface temperature.
 # The HWFET and HPPC tests are left out (held out for scoring). Score with benchmarks/bench_panasonic_temps.py.
-# Measured (2 cores, 4 min 19 s in all with tests running beside it; the drive tests read one logging interval after
-# each grid time, see battlab.identify.experiments.read_delay): after step 3 the 25 degC US06 (training) 44.8 ->
-# 25.0 mV (b_n 2.8, b_p -1.7), converged with k_p, R_f_n, kappa_scale, D_e_scale and eps_e_s on bounds (missing
-# structure, not too few evaluations). Step 4: E_D_s_n 41.7, E_D_s_p 19.2, E_kappa 31.2, E_D_e 24.3 kJ/mol, E_k_p
-# clipped at 0. The written cell, whole test / to 90 % of its charge (benchmarks/bench_panasonic_temps.py): HWFET
-# 25 degC 33.8 / 11.6 mV (96 % reached), 10 degC 41.4 / 21.0, 0 degC 65.4 / 56.1; US06 25/10/0 degC 25.8 / 31.5 /
-# 70.3 mV (all reached). Without the stoichiometry-dependent D_s (no refit) the six drive tests' mean is 13 mV worse;
-# with the nominal activation energies instead of step 4's it is 8 mV better on them (HWFET 0 degC 43 mV) but the
-# 0 degC US06 stops at 75 % (benchmarks/bench_panasonic_ablation.py): energies fitted to US06 alone do not carry to
-# HWFET. A capacity per file in the refits (--per-file-ageing capacity) puts the 0 degC US06 at 1.03 of the 25 degC
-# one, so the fade between the test dates does not explain the cold misfit.
+# Measured (2 cores, tests running beside it: 4 min 19 s with a warm model cache, 9 min with an empty one; the drive
+# tests read one logging interval after each grid time, see battlab.identify.experiments.read_delay): after step 3 the
+# 25 degC US06 (training) 44.8 -> 25.0 mV (b_n 2.8, b_p -1.7), converged with k_p, R_f_n, kappa_scale, D_e_scale and
+# eps_e_s on bounds (missing structure, not too few evaluations). Step 4: E_D_s_n 41.7, E_D_s_p 19.2, E_kappa 31.2,
+# E_D_e 24.3 kJ/mol, E_k_p clipped at 0. The written cell, whole test / to 90 % of its charge
+# (benchmarks/bench_panasonic_temps.py): HWFET 25 degC 33.8 / 11.6 mV (96 % reached), 10 degC 41.4 / 21.0, 0 degC 65.4
+# / 56.1; US06 25/10/0 degC 25.8 / 31.5 / 70.3 mV (all reached). Without the stoichiometry-dependent D_s (no refit)
+# the six drive tests' mean is 13 mV worse; with the nominal activation energies instead of step 4's it is 8 mV better
+# on them (HWFET 0 degC 43 mV) but the 0 degC US06 stops at 75 % (benchmarks/bench_panasonic_ablation.py): energies
+# fitted to US06 alone do not carry to HWFET. A capacity per file in the refits (--per-file-ageing capacity) puts the
+# 0 degC US06 at 1.03 of the 25 degC one, so the fade between the test dates does not explain the cold misfit.
 set -euo pipefail
 if [[ $# -ne 2 ]]; then
     echo "usage: $0 DATA_DIR OUT.bpx.json" >&2
