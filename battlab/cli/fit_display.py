@@ -52,9 +52,12 @@ class FitDisplay:
         from battlab.identify.workflow import stage_figures
 
         c = r.convergence
+        # the reason starts with its own "converged" / "not converged": said once, in capitals when it did not
+        why = c.reason.removeprefix("not converged").removeprefix("converged").lstrip(":; ")
+        sep = " " if why.startswith("(") else ": " if why else ""
         click.echo(
             f"stage {k} of {total}: {len(r.names)} parameters, {c.iterations} evaluations, "
-            f"{'converged' if c.converged else 'NOT converged'}; {c.reason}"
+            f"{'converged' if c.converged else 'NOT converged'}{sep}{why}"
         )
         width = max((len(n) for n in r.rmse_mV), default=4)
         click.echo(f"  {'data':<{width}}  RMSE before -> after [mV]  noise [mV]  after/noise")

@@ -377,6 +377,8 @@ def _fit(
         gn = f"the linearised cost predicts a further decrease of {dec:.2g} inside the bounds"
     if err is not None:
         reason = err
+    elif converged and status == 0:  # the stopping rule holds where the optimiser ran out of evaluations
+        reason = f"converged: {gn} (≤ {opt.predicted_tol:g}; the optimiser stopped at its evaluation limit)"
     elif converged:
         reason = f"converged ({ended}); {gn}"
     else:

@@ -191,6 +191,8 @@ def test_fit_says_how_good_it_is_and_how_far_to_trust_it(tmp_path, virtual_csv) 
     assert r.exit_code == 0, r.output
     assert "RMSE before -> after [mV]" in r.output and "noise [mV]" in r.output
     assert "stopped at its limit of 2 evaluations" in r.output and "--max-iter 4" in r.output
+    assert "2 evaluations, NOT converged: maximum number of iterations reached; " in r.output, r.output
+    assert "NOT converged; not converged" not in r.output
     assert "m2/s" in r.output and "trusted" in r.output
     last = r.output.strip().splitlines()[-2]
     assert last.startswith("fit NOT converged: RMSE") and "of 2 intervals trusted" in last, r.output

@@ -205,6 +205,9 @@ def test_a_fit_converged_by_the_gauss_newton_prediction_is_at_the_minimum() -> N
     assert c.converged, c.reason
     assert c.cost <= best + F.Options().predicted_tol
     assert 0.0 <= c.predicted_decrease <= F.Options().predicted_tol
+    # said as what it is: converged by the prediction, although the optimiser ran out of evaluations
+    assert c.reason.startswith("converged: the linearised cost predicts a further decrease of"), c.reason
+    assert c.reason.endswith("the optimiser stopped at its evaluation limit)") and "iterations reached" not in c.reason
 
 
 def test_a_gauss_newton_step_that_cannot_be_solved_is_not_convergence(monkeypatch) -> None:
