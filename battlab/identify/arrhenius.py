@@ -174,21 +174,13 @@ def continued_start(
         {n: values[near][n] * np.exp(float(cell[ACTIVATION[n]]) / R_GAS * (x_near - x)) for n in names},
     ):
         candidates.append(cell.with_values(**n_values))
-    return min(candidates, key=lambda c: held_rmse(forward, c, exps))
+    return min(candidates, key=lambda c: fit_cost(forward, c, exps))
 
 
-def held_rmse(forward: object, cell: Cell, exps: Sequence) -> float:
-    """RMSE [V] of ``cell`` on ``exps`` scored as a fit scores it: a simulation that stops early holds its last
-    voltage (:class:`battlab.identify.problem.Problem`); one that does not start scores infinite."""
-    from battlab.identify.validation import prediction
+def fit_cost(forward: object, cell: Cell, exps: Sequence) -> float:
+    """½‖r‖² of ``cell`` on ``exps``: the fit's own weighted residual (:class:`battlab.identify.problem.Problem`,
+    where a simulation that stops early holds its last voltage), without sensitivities."""
+    from battlab.identify.problem import Problem
 
-    sq, n = 0.0, 0
-    for e in exps:
-        v, _ = prediction(forward, cell, e)
-        ok = np.isfinite(v)
-        if not ok.any():
-            return float("inf")
-        v = np.where(ok, v, v[ok][-1])
-        r = (v - e.voltage)[e.mask]
-        sq, n = sq + float(r @ r), n + r.size
-    return float(np.sqrt(sq / n)) if n else float("inf")
+    r, _, _ = Problem(forward, exps, (), cell.theta_bar()).evaluate(np.zeros(0))
+    return 0.5 * float(r @ r)
