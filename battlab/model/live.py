@@ -2,7 +2,8 @@
 
 The same compiled stepper and step rules as :func:`battlab.simulate` (a restart after every current change,
 steps growing up to ``dt_max``), applied incrementally, so a profile played through :class:`LiveCell` one sample
-at a time reproduces ``simulate`` on that profile.
+at a time reproduces ``simulate`` on that profile, up to where ``simulate`` ends at a voltage limit: there the live
+cell holds at the limit (:meth:`LiveCell.step`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,9 @@ _EMPTY = np.zeros(0)
 #: a step that fails even with a smaller first step is retried as two halves, each retried the same way, down to
 #: 1/2**SPLIT_DEPTH of the step
 SPLIT_DEPTH = 5
+#: bisections of a step whose solution ends inside it, for the instant the voltage reaches the cell's limit (a 10 s
+#: step: to 2.4 ms)
+LIMIT_BISECTIONS = 12
 
 
 class CellLimitError(RuntimeError):
@@ -57,6 +61,8 @@ class LiveCell:
         self._I_dis = 0.0
         self._h_prev = 0.0
         self._h_allowed = self.settings.dt_first
+        #: (discharge current [A], state where that step began) while the cell is held at its voltage limit
+        self._held: tuple[float, tuple] | None = None
         self.t = 0.0
         self.voltage, self.T_core, self.T_surface = self._advance(0.0, 0.0, T0, first=True)
 
@@ -79,9 +85,13 @@ class LiveCell:
         self, I_dis: float, dt: float, ambient: float, first: bool, dt_first: float | None
     ) -> tuple[float, float, float]:
         s = self.settings
-        restart = first or I_dis != self._I_dis or dt_first is not None
-        hs: list[float] = [0.0] if first else []
-        ws: list[float] = [0.0] if first else []
+        changed = not first and I_dis != self._I_dis
+        restart = first or changed or dt_first is not None
+        # a current change starts with its right limit, as in simulate: a zero-length step at the old current whose
+        # sample carries the new one, so the stepper solves the algebraic jump (by continuation in the current where
+        # Newton from the old current's state does not converge) before the first step
+        hs: list[float] = [0.0] if first or changed else []
+        ws: list[float] = [0.0] if first or changed else []
         if restart:
             self._h_allowed = s.dt_first if dt_first is None else dt_first
         remaining = dt
@@ -93,22 +103,29 @@ class LiveCell:
             h_prev = h
             remaining -= h
             self._h_allowed = min(h * s.growth, s.dt_max)
-        if not hs:  # dt == 0: re-solve the algebraic state for the new current
+        if not hs:  # dt == 0 at the same current: re-solve the algebraic state
             hs, ws = [0.0], [0.0]
         n = len(hs)
         t_end = np.cumsum(hs)
         t_end[-1] = dt  # the sample ends the last step exactly
         emit = np.zeros(n, dtype=np.int32)
         emit[-1] = 1
-        plan = StepPlan.of(hs, ws, np.full(n, I_dis), np.full(n, ambient), t_end, emit)
-        out = np.full((1, 5), np.nan)
-        dummy = np.zeros((1, 1))
+        currents = np.full(n, I_dis)
+        sample_t, sample_I = [dt], [I_dis]
+        if changed:
+            currents[0] = self._I_dis
+            emit[0] = 1
+            if n > 1:
+                sample_t, sample_I = [0.0, dt], [I_dis, I_dis]
+        plan = StepPlan.of(hs, ws, currents, np.full(n, ambient), t_end, emit)
+        out = np.full((len(sample_t), 5), np.nan)
+        dummy = np.zeros((len(sample_t), 1))
         lim = np.array([-np.inf, np.inf, np.inf])
         none = np.zeros(0, dtype=np.int32)
         y0, xp0 = self._y.copy(), self._xp.copy()
 
         def attempt() -> tuple[int, int]:
-            samples = SamplePlan.of([dt], [I_dis])
+            samples = SamplePlan.of(sample_t, sample_I)
             done, code, _ = self._stepper.run(
                 self._pivots,
                 plan,
@@ -141,7 +158,7 @@ class LiveCell:
             raise RuntimeError(f"cell model: step did not converge at t = {self.t + sum(hs[:done]):.3f} s")
         self._I_dis = I_dis
         self._h_prev = h_prev if h_prev > 0 else self._h_prev
-        V, T1, T2, smin, smax = out[0]
+        V, T1, T2, smin, smax = out[-1]
         if not (smin > 0.0 and smax < 1.0):
             raise CellLimitError("cell model: a particle surface emptied or filled (the cell is beyond its limits)")
         return float(V), float(T1), float(T2)
@@ -150,21 +167,79 @@ class LiveCell:
         """Apply ``current`` [A, positive = charge] for ``dt`` [s] at ``ambient`` [K]; return (V, T_surface).
 
         A step that does not converge is retried with a smaller first step, then as halves (each retried the same
-        way, ``SPLIT_DEPTH`` levels). A step that fails all the same raises ``RuntimeError`` and leaves the cell as it
-        was before the step, so the next step (another current, a rest) starts from a valid state."""
+        way, ``SPLIT_DEPTH`` levels). Where the solution ends inside the step with the voltage past the cell's limit
+        in the current's direction (a particle surface emptying or filling: the voltage collapses, see
+        :func:`battlab.model.dfn.edge_potential`), the cell stops where its voltage reaches V_min (V_max on charge),
+        found by bisection, and holds there for the rest of the step and for later steps of the same current: a
+        cycler's own limit catches a collapsing voltage at the cut-off, and the samples read it past the cut-off,
+        where ``simulate`` ends. The next current starts from the held state, or, where the solver cannot follow it
+        from there (the surface at its very edge), from the state where the held step began (at most one step's
+        charge earlier). A step that fails otherwise raises ``RuntimeError`` and leaves the cell as it was
+        before the step, so the next step (another current, a rest) starts from a valid state."""
         if dt < 0 or not np.isfinite(dt) or not np.isfinite(current):
             raise InputError(f"step: need finite current and dt ≥ 0, got {current} A, {dt} s")
+        I_dis = -float(current)
+        if self._held is not None and I_dis == self._held[0]:
+            self.t += dt
+            return self.voltage, self.T_surface
+        held, self._held = self._held, None
         before = self._save()
         t0 = self.t
         try:
             self.voltage, self.T_core, self.T_surface = self._advance_split(
-                -float(current), float(dt), float(ambient), SPLIT_DEPTH
+                I_dis, float(dt), float(ambient), SPLIT_DEPTH
             )
         except RuntimeError:
-            self._restore(before)
-            raise
+            if held is not None:  # leaving the limit: from the state where the held step began
+                self._restore(held[1])
+                self.t = t0
+                try:
+                    self.voltage, self.T_core, self.T_surface = self._advance_split(
+                        I_dis, float(dt), float(ambient), SPLIT_DEPTH
+                    )
+                except RuntimeError:
+                    self._restore(before)
+                    self._held = held
+                    raise
+            else:
+                self._restore(before)
+                if not self._stop_at_limit(I_dis, float(dt), float(ambient)):
+                    self._restore(before)
+                    raise
+                self._held = (I_dis, before)
         self.t = t0 + dt
         return self.voltage, self.T_surface
+
+    def _stop_at_limit(self, I_dis: float, dt: float, ambient: float) -> bool:
+        """From the state before a failed step: advance to where the voltage first reaches the cell's limit in the
+        current's direction (bisection on the time into the step, each trial from the start state); False (the state
+        undefined) when no trial that converges ends past the limit, i.e. the step failed short of it."""
+        if I_dis == 0.0:
+            return False
+        limit = float(self.cell["V_min"]) if I_dis > 0 else float(self.cell["V_max"])
+
+        def past(v: float) -> bool:
+            return v <= limit if I_dis > 0 else v >= limit
+
+        start = self._save()
+        lo, hi, found = 0.0, dt, None
+        for _ in range(LIMIT_BISECTIONS):
+            mid = 0.5 * (lo + hi)
+            self._restore(start)
+            try:
+                out = self._advance_split(I_dis, mid, ambient, SPLIT_DEPTH)
+            except RuntimeError:
+                hi = mid
+                continue
+            if past(out[0]):
+                hi, found = mid, (self._save(), out)
+            else:
+                lo = mid
+        if found is None:
+            return False
+        self._restore(found[0])
+        self.voltage, self.T_core, self.T_surface = found[1]
+        return True
 
     def _save(self) -> tuple:
         return (

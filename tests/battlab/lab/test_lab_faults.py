@@ -339,14 +339,8 @@ def test_a_resume_with_an_unreachable_instrument_changes_nothing(make_lab, home:
     assert Catalog().get(first.run_id).status == "completed"
 
 
-def test_a_cell_model_failure_aborts_its_run_and_the_next_run_goes_on(make_lab, home: Path, tmp_path: Path) -> None:
-    """The DFN cell cannot carry 5C at 3 % SOC: that step fails to converge even in halves. The run aborts with the
-    output off and the cycler's reason; the tester stays usable and the next run on it completes (its reset clears
-    the failure; the cell goes on from its last good state)."""
-    from battlab.lab.virtual import make_cell_physics
-
-    lab = make_lab(make_cell_physics("nca18650"), soc0=0.03, speed=100.0)
-    steps = """
+#: rest, 20 s at a constant current, rest (``name``, ``current`` [A] to fill in)
+_REST_CC_REST = """
 name = "{name}"
 [run]
 stable_hold_s = 5
@@ -361,11 +355,49 @@ until = ["time >= 20", "voltage >= 4.1"]
 kind = "rest"
 until = "time >= 5"
 """
-    failed = run_on(lab, steps.format(name="beyond the cell", current=-13.5), tmp_path, name="fail.h5")
+
+
+def test_a_cell_model_failure_aborts_its_run_and_the_next_run_goes_on(
+    make_lab, home: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The DFN cell's step fails to converge at 5C even in halves, with its voltage inside the limits (a model
+    failure, not a limit to stop at; made here by refusing every step above 10 A). The run aborts with the output off
+    and the cycler's reason; the tester stays usable and the next run on it completes (its reset clears the failure;
+    the cell goes on from its last good state)."""
+    from battlab.lab.virtual import make_cell_physics
+    from battlab.model.live import LiveCell
+
+    real = LiveCell._advance_once
+
+    def no_high_rate(self: LiveCell, I_dis: float, *args: object) -> tuple[float, float, float]:
+        if abs(I_dis) > 10.0:
+            raise RuntimeError("cell model: step did not converge")
+        return real(self, I_dis, *args)
+
+    monkeypatch.setattr(LiveCell, "_advance_once", no_high_rate)
+    lab = make_lab(make_cell_physics("nca18650"), soc0=0.5, speed=100.0)
+    failed = run_on(lab, _REST_CC_REST.format(name="beyond the cell", current=-13.5), tmp_path, name="fail.h5")
     assert failed.status == "aborted" and failed.reason.startswith("protection: ")
     assert "MODEL" in failed.reason and "cell model: step did not converge" in failed.reason
     assert failed.summary["shutdown"]["output_off_confirmed"] and not lab.snapshot()["output_on"]
-    ok = run_on(lab, steps.format(name="a charge", current=2.7), tmp_path, name="ok.h5")
+    ok = run_on(lab, _REST_CC_REST.format(name="a charge", current=2.7), tmp_path, name="ok.h5")
     assert (ok.status, ok.reason) == ("completed", None)
     data = read_log(ok.log_path)
     assert np.all(data.columns["Current / A"][data.columns["Step Index / 1"] == 2] > 2.6)
+
+
+def test_a_current_beyond_the_cell_aborts_at_the_voltage_limit_not_as_a_model_failure(
+    make_lab, home: Path, tmp_path: Path
+) -> None:
+    """5C at 3 % SOC is more than the DFN cell can carry: its voltage collapses through the cut-off at the step and
+    its solution ends there. The run aborts on the voltage limit, as with a real cell (not as a failed cell model,
+    which would leave the virtual cell latched off), and the next run on the tester completes."""
+    from battlab.lab.virtual import make_cell_physics
+
+    lab = make_lab(make_cell_physics("nca18650"), soc0=0.03, speed=100.0)
+    failed = run_on(lab, _REST_CC_REST.format(name="beyond the cell", current=-13.5), tmp_path, name="fail.h5")
+    assert failed.status == "aborted" and "MODEL" not in failed.reason and "cell model" not in failed.reason
+    assert "voltage" in failed.reason and not lab.cycler.model_failed
+    assert failed.summary["shutdown"]["output_off_confirmed"] and not lab.snapshot()["output_on"]
+    ok = run_on(lab, _REST_CC_REST.format(name="a charge", current=2.7), tmp_path, name="ok.h5")
+    assert (ok.status, ok.reason) == ("completed", None)

@@ -54,3 +54,22 @@ def test_a_current_jump_after_a_pivot_re_analysis_starts_from_its_right_limit() 
     res = battlab.simulate(cell, prof, soc0=1.0, ambient=253.15, v_limits=(2.0, 4.5))
     assert res.ended_by is not None and res.ended_by.startswith("V < 2"), res.ended_by
     assert res.t[-1] == 297.0
+
+
+def test_the_edge_potential_is_negligible_inside_the_range_and_diverges_at_its_limits() -> None:
+    """The ideal-solution term at the stoichiometry limits (battlab.model.dfn.edge_potential): below 0.2 mV
+    further than 5 widths from a limit, raising the potential towards θ = 0 and lowering it towards θ = 1 by tens of
+    mV at the limit, continued past it as its tangent (finite, monotone: a Newton iterate there is pushed back)."""
+    import casadi as ca
+
+    from battlab.model.dfn import EDGE_WIDTH, edge_potential
+
+    x = ca.SX.sym("x")
+    f = ca.Function("edge", [x], [edge_potential(x, 298.15)])
+    inside = np.linspace(5 * EDGE_WIDTH, 1 - 5 * EDGE_WIDTH, 2001)
+    assert np.max(np.abs(np.array(f(inside.reshape(1, -1))).ravel())) < 2e-4
+    theta = np.array([-0.01, -1e-4, 0.0, 1e-4, EDGE_WIDTH, 3 * EDGE_WIDTH])
+    low = np.array(f(theta.reshape(1, -1))).ravel()
+    high = np.array(f((1.0 - theta).reshape(1, -1))).ravel()
+    assert np.all(np.isfinite(low)) and np.all(np.diff(low) < 0) and low[2] > 0.05
+    assert np.allclose(high, -low)
