@@ -65,3 +65,17 @@ def test_the_cell_keeps_its_state_between_runs(tmp_path: Path) -> None:
     a, b = D.load(first.log_path), D.load(second.log_path)
     assert abs(b.voltage[0] - a.voltage[-1]) < 5e-3  # the rest voltage carried over, not a fresh cell
     assert a.voltage[-1] < a.voltage[0] - 0.1  # and the first run did discharge it
+
+
+def test_a_preparation_that_runs_out_stops_at_its_guard_above_the_abort_limit(tmp_path: Path) -> None:
+    """A truth with a stoichiometry-dependent solid diffusivity (b± = 2) cannot give 80 % of its capacity at C/2: the
+    preparation to SOC 0.2 reaches the end of what the cell gives, where the voltage falls up to 90 mV per 10 s
+    sample. It stops at its guard (V_MIN + PREP_GUARD_V) and completes, instead of passing the 2.45 V abort limit
+    between two samples."""
+    tester = T.Tester(truth="nca18650-true+solid_diffusion:b_n=2.0,b_p=2.0", seed=0)
+    bench = VirtualBench(tester, 25.0)
+    out = run_plan(P.prepare(0.2, 2.7, 2.7, 25.0), tester, tmp_path / "p.h5", cell="nca18650", bench=bench, soc0=0.9)
+    assert out.status == "completed", out.reason
+    d = D.load(out.log_path)
+    v = d.voltage[D.steps(d, 3, 3)]
+    assert P.V_MIN + 0.05 < v[-1] <= P.V_MIN + P.PREP_GUARD_V  # the guard ended it, not the Ah
