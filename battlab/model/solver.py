@@ -85,14 +85,21 @@ def native_stepper(cell: Cell, mesh: Mesh, isothermal: bool):  # -> NativeSteppe
 
 
 def _no_right_limit(
-    t: float, I_before: float, I_after: float, limits: dict[str, float], v_before: float = np.nan
+    t: float,
+    I_before: float,
+    I_after: float,
+    limits: dict[str, float],
+    v_before: float = np.nan,
+    sto_before: tuple[float, float] = (np.nan, np.nan),
 ) -> str:
     """Why a run ends when no algebraic state within the voltage limits exists for the current that starts at a
     sample (continuation in the current found none). A larger discharge (charge) current than the cell can carry
     at this state has no solution there: the voltage collapses past the limit on the way, or the voltage–current
     curve folds before the current is reached, and a tester stops at the limit. Otherwise the state before the
     change may itself be beyond a limit (``v_before``, its voltage [V]: the voltage passed the limit during the
-    step). Currents in the model's sign (positive = discharge)."""
+    step), or a particle surface in it emptied or filled during the step (``sto_before``: its lowest and highest
+    surface stoichiometry; the end :func:`battlab.model.state.check_end` gives at a sample). Currents in the model's
+    sign (positive = discharge)."""
     if I_after > max(I_before, 0.0):
         return (
             f"V < {limits['V_min']:g} (no solution at {-I_after:.4g} A at t = {t:.6g} s: more than the cell can carry)"
@@ -105,6 +112,12 @@ def _no_right_limit(
     if v_before < lo or v_before > hi:
         side = f"V < {lo:g}" if v_before < lo else f"V > {hi:g}"
         return f"{side} (reached during the step to t = {t:.6g} s, where the current changes to {-I_after:.4g} A)"
+    if sto_before[0] <= 0.0 or sto_before[1] >= 1.0:
+        edge = 0 if sto_before[0] <= 0.0 else 1
+        return (
+            f"surface stoichiometry reached {edge} (during the step to t = {t:.6g} s, where the current changes to "
+            f"{-I_after:.4g} A)"
+        )
     return f"solver: no right-limit solution at t = {t:.6g} s"
 
 
@@ -223,7 +236,9 @@ def run_native(
             ended_by = check_end(m, out[:, 0], out[:, 2], out[:, 3], out[:, 4], limits)
             break
         if code == -4:
-            ended_by = _no_right_limit(float(t_end[pos - 1]), cur[pos - 1], I_dis[m], limits, out[m, 0])
+            ended_by = _no_right_limit(
+                float(t_end[pos - 1]), cur[pos - 1], I_dis[m], limits, out[m, 0], (out[m, 3], out[m, 4])
+            )
             break
         # a failed step: y, xp, S, Sp hold the last converged state; first a pivot order for this state (this
         # run's own: later runs start from the base again), then smaller steps. -5: a zero-length solve (the
@@ -345,7 +360,10 @@ def _adaptive(
         if code == 1:
             return check_end(m, out[:, 0], out[:, 2], out[:, 3], out[:, 4], limits), n_iter
         if code == -4:
-            return _no_right_limit(t_now, segments.current[k], samples.current[m], limits, out[m, 0]), n_iter
+            why = _no_right_limit(
+                t_now, segments.current[k], samples.current[m], limits, out[m, 0], (out[m, 3], out[m, 4])
+            )
+            return why, n_iter
         last = float(control.current[control.n - 1]) if control.n else float(segments.current[k])
         if code == -1:
             what = f"solver: Newton did not converge at t = {t_now:.6g} s"

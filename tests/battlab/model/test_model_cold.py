@@ -73,3 +73,16 @@ def test_the_edge_potential_is_negligible_inside_the_range_and_diverges_at_its_l
     high = np.array(f((1.0 - theta).reshape(1, -1))).ravel()
     assert np.all(np.isfinite(low)) and np.all(np.diff(low) < 0) and low[2] > 0.05
     assert np.allclose(high, -low)
+
+
+def test_a_surface_that_filled_during_the_step_before_a_current_change_is_the_run_s_end() -> None:
+    """No right limit at a current change, the voltage still inside the limits, but the state before the change has
+    a particle surface past full (the fitted Panasonic cell on WLTC 3b at -10 °C, its discharge easing from 8.59 to
+    8.36 A while the voltage collapses: 2.03 V, θ⁺ 1.0000054 at the left limit). That is the end check_end gives at a
+    sample, not a solver failure; with every surface inside its range it stays a solver failure."""
+    from battlab.model.solver import _no_right_limit
+
+    limits = {"V_min": 2.0, "V_max": 4.5, "T_max": 333.15}
+    why = _no_right_limit(5170.0, 8.5885, 8.3617, limits, 2.029, (0.022, 1.0000054))
+    assert why.startswith("surface stoichiometry reached 1"), why
+    assert _no_right_limit(5170.0, 8.5885, 8.3617, limits, 2.029, (0.022, 0.99)).startswith("solver:")
