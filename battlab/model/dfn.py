@@ -66,7 +66,7 @@ def edge_potential(sto: ca.SX, T: ca.SX, width: float = EDGE_WIDTH) -> ca.SX:
     g0 = float(np.log(-np.expm1(-EDGE_JOIN)))  # ln(1 − e^(−u/w)) at u0 and its slope there
     s0 = float(np.exp(-EDGE_JOIN) / -np.expm1(-EDGE_JOIN)) / width
 
-    def log_gap(u: ca.SX) -> ca.SX:
+    def log_gap(u: ca.SX) -> ca.SX:  # fmax: if_else evaluates both branches, the log must not see u <= 0
         return ca.if_else(u > u0, ca.log(-ca.expm1(-ca.fmax(u, u0) / width)), g0 + s0 * (u - u0))
 
     return (R_GAS * T / F) * (log_gap(1.0 - sto) - log_gap(sto))

@@ -178,35 +178,35 @@ class LiveCell:
         before the step, so the next step (another current, a rest) starts from a valid state."""
         if dt < 0 or not np.isfinite(dt) or not np.isfinite(current):
             raise InputError(f"step: need finite current and dt ≥ 0, got {current} A, {dt} s")
-        I_dis = -float(current)
+        I_dis, dt, ambient = -float(current), float(dt), float(ambient)
         if self._held is not None and I_dis == self._held[0]:
             self.t += dt
             return self.voltage, self.T_surface
         held, self._held = self._held, None
         before = self._save()
         t0 = self.t
+
+        def advance() -> None:
+            self.voltage, self.T_core, self.T_surface = self._advance_split(I_dis, dt, ambient, SPLIT_DEPTH)
+
         try:
-            self.voltage, self.T_core, self.T_surface = self._advance_split(
-                I_dis, float(dt), float(ambient), SPLIT_DEPTH
-            )
+            advance()
         except RuntimeError:
-            if held is not None:  # leaving the limit: from the state where the held step began
+            if held is None:
+                self._restore(before)
+                if not self._stop_at_limit(I_dis, dt, ambient):
+                    self._restore(before)
+                    raise
+                self._held = (I_dis, before)
+            else:  # leaving the limit: from the state where the held step began
                 self._restore(held[1])
                 self.t = t0
                 try:
-                    self.voltage, self.T_core, self.T_surface = self._advance_split(
-                        I_dis, float(dt), float(ambient), SPLIT_DEPTH
-                    )
+                    advance()
                 except RuntimeError:
                     self._restore(before)
                     self._held = held
                     raise
-            else:
-                self._restore(before)
-                if not self._stop_at_limit(I_dis, float(dt), float(ambient)):
-                    self._restore(before)
-                    raise
-                self._held = (I_dis, before)
         self.t = t0 + dt
         return self.voltage, self.T_surface
 
