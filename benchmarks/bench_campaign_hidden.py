@@ -4,9 +4,10 @@ effect (or none), each as a user would run it, and what its diagnosis stage says
 Each case is a campaign TOML (``[campaign] truth = "nca18650-true+KEY:NAME=VALUE,..."``, ``seed``) run by the
 installed command in its own directory; per case the table gives the cause expected (None: no hidden effect), the
 cause kept, what the diagnosis named (``suggested``), the causes extended and scored, the mean validation RMSE
-against the noise-free truth before and after the extend step, the deciding experiments' lab hours and the
-campaign's wall time. A case is right when the cause kept is the one hidden (null: none kept); the summary counts
-right, wrong (another cause kept) and missed, and false alarms on the nulls.
+against the noise-free truth of the baseline (the better of the OED cell and its base refitted alone by the same
+evaluations) and of the extended cell, the deciding experiments' lab hours and the campaign's wall time. A case is
+right when the cause kept is the one hidden (null: none kept); the summary counts right, wrong (another cause kept)
+and missed, and false alarms on the nulls.
 
     PYTHONPATH=$PWD python benchmarks/bench_campaign_hidden.py --out DIR [--cases a,b] [--jobs 2] [--json J]
     python benchmarks/bench_campaign_hidden.py --from-json J     # the table again, no runs
@@ -73,6 +74,7 @@ def run_case(name: str, out: Path, rerun: bool) -> dict[str, Any]:
         "suggested": dg.get("suggested"),
         "extended": [t["cause"] for t in dg.get("extended", [])],
         "before_mV": g.get("rmse_before_mV"),
+        "baseline": g.get("baseline"),
         "after_mV": g.get("rmse_after_mV"),
         "lab_hours_deciding": dg.get("lab_hours", 0.0),
         "wall_s": sum(st["wall_s"] for st in s["stages"]),
@@ -96,7 +98,8 @@ def print_table(rows: list[dict[str, Any]]) -> None:
     def f(x: Any) -> str:
         return "–" if x is None else f"{x:.2f}"
 
-    head = ["case", "expected", "kept", "diagnosis named", "extended", "before mV", "after mV", "wall s", "verdict"]
+    head = ["case", "expected", "kept", "diagnosis named", "extended", "baseline", "before mV", "after mV", "wall s"]
+    head.append("verdict")
     body = [
         [
             r["case"],
@@ -104,6 +107,7 @@ def print_table(rows: list[dict[str, Any]]) -> None:
             str(r.get("kept")),
             str(r.get("suggested")),
             ",".join(r.get("extended", [])) or "–",
+            str(r.get("baseline") or "–"),
             f(r.get("before_mV")),
             f(r.get("after_mV")),
             f"{r.get('wall_s', 0):.0f}",

@@ -414,20 +414,27 @@ def diagnosis(view: View) -> Section:
     if len(tried) > 1:
         blocks.append(
             Table(
-                ["cause", "before [mV]", "after [mV]", "kept"],
-                [[t["cause"], t["rmse_before_mV"], t["rmse_after_mV"], "yes" if t["kept"] else "no"] for t in tried],
-                caption="causes extended (extend step) and scored on the validation tests (mean RMSE)",
+                ["cause", "OED cell [mV]", "base refit [mV]", "extended [mV]", "kept"],
+                [
+                    [t["cause"], t.get("rmse_oed_mV", t["rmse_before_mV"]), t.get("rmse_refit_mV"), t["rmse_after_mV"]]
+                    + ["yes" if t["kept"] else "no"]
+                    for t in tried
+                ],
+                caption="causes extended (extend step) and scored on the validation tests (mean RMSE), beside the OED "
+                "cell and its base refitted alone by the same evaluations (the control)",
             )
         )
     table = dg.get("validation_rmse_mV") or {}
     if table:
         names = list(next(iter(table.values())))
         shown = (dg.get("extension_gain") or {}).get("cause") or cause or dg.get("suggested")
+        control = "refit" in table
         blocks.append(
             Table(
-                ["held-out test", "before [mV]", "after [mV]"],
-                [[n, table["before"][n], table["after"][n]] for n in names],
-                caption=f"the OED fit before and after the {shown} extension (extend step)",
+                ["held-out test", "before [mV]", *(["base refit [mV]"] if control else []), "after [mV]"],
+                [[n, table["before"][n], *([table["refit"][n]] if control else []), table["after"][n]] for n in names],
+                caption=f"the OED fit before and after the {shown} extension (extend step)"
+                + (", beside its base refitted alone by the same evaluations" if control else ""),
             )
         )
     g = dg.get("diagnosis_gain") or {}

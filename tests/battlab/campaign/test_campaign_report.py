@@ -93,3 +93,10 @@ def test_the_diagnosis_section_shows_each_cause_extended_and_the_one_kept(tmp_pa
     dg0 = dg | {"cause": None, "extended": tried[:1], "extension_gain": {"cause": "current_sensor"}}
     html = render("t", [diagnosis(View(tmp_path, {"diagnosis": dg0}, {}, None, tmp_path))])
     assert "before and after the current_sensor extension" in html and "None" not in html
+    # with the control (the base refitted alone by the same evaluations) beside before and after
+    control = {"rmse_oed_mV": 20.91, "rmse_refit_mV": 17.12, "rmse_before_mV": 17.12, "baseline": "base refit"}
+    dg1 = dg | {"extended": [tried[0], tried[1] | control]}
+    dg1["validation_rmse_mV"] = table | {"refit": {"1C discharge": 33.0}}
+    html = render("t", [diagnosis(View(tmp_path, {"diagnosis": dg1}, {}, None, tmp_path))])
+    assert "<th>base refit [mV]</th>" in html and "<td>17.12</td>" in html and "<td>33</td>" in html
+    assert "beside its base refitted alone by the same evaluations" in html
