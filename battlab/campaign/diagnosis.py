@@ -189,6 +189,15 @@ def left_off(cell: Cell, key: str) -> str | None:
     return f"its fit left {key} at off (at most {sizes} of the typical sizes)"
 
 
+def look_alikes(key: str) -> str:
+    """What else a kept cause's extended cell is consistent with, and what tells them apart (the cause's declared
+    :attr:`battlab.causes.cause.Cause.separates`), as a sentence for its verdict; empty when none is declared."""
+    alike = causes.cause(key).separates
+    if not alike:
+        return ""
+    return " Also consistent with " + "; ".join(f"{k}, told apart by {how}" for k, how in alike.items()) + "."
+
+
 #: a cause named after a deciding experiment is kept when the extended cell predicts the validation tests no worse
 #: than this (relative mean RMSE)
 NO_WORSE = 0.1
@@ -325,6 +334,7 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
                 table, verdict, files["cell"] = rmse, why, f"diagnosis/{name}"
             if named is not None:
                 cause = named
+                verdict += look_alikes(named)
                 break
         summary = {
             "method": "battlab diagnose on the designed experiments, the validation drive cycle held out"

@@ -60,4 +60,8 @@ CAUSE = Cause(
     slots=frozenset({"ocp_curve_n", "ocp_curve_p"}),
     example={"d_sto_n": -0.005, "d_sto_p": 0.005, "dU": 0.003},
     validated_by="exact: the shifted curves are the cell's own (tests/battlab/model)",
+    separates={
+        "capacity_fade": "capacity checks before and after the tests (lithium lost during them shifts the windows "
+        "as they go on and lowers the capacity; a shift of the OCP curves stays and leaves the capacity)"
+    },
 )

@@ -78,3 +78,13 @@ def test_an_extension_its_fit_left_at_off_is_not_the_cause_of_a_gain() -> None:
     assert why == f"its fit left thermal at off (at most {sizes} of the typical sizes)"
     assert left_off(cell.with_extension("thermal", h2a_scale=1.5016, dUdT_offset=1.1e-4), "thermal") is None
     assert left_off(cell.with_extension("hysteresis", M_n=0.012), "hysteresis") is None
+
+
+def test_a_kept_cause_says_what_else_its_extended_cell_is_consistent_with() -> None:
+    """Lithium lost during the campaign shifts the windows as an OCP shift would (a 1.5 mA side current was kept as
+    an equilibrium shift): the verdict names the look-alike and the experiment that tells them apart."""
+    from battlab.campaign.diagnosis import look_alikes
+
+    text = look_alikes("equilibrium")
+    assert text.startswith(" Also consistent with capacity_fade, told apart by capacity checks before and after")
+    assert look_alikes("hysteresis") == ""
