@@ -12,7 +12,8 @@ the OED fit's base alone refitted by as many evaluations. The cells are scored o
 residual before and after, against the noise-free truth on the virtual lab. A cause is kept only when its extended
 cell predicts those tests (never fitted, other profiles than the diagnosis's held-out drive cycle) better by the
 diagnosis's own margin than the better of the OED cell and the control, or, for a cause a deciding experiment told
-apart, no worse (:func:`kept`), and its fit moved the extension from off (:func:`left_off`); else the summary's
+apart, no worse (:func:`kept`), its fit moved the extension from off (:func:`left_off`) and no declared look-alike
+of it passed its score test too (:func:`rivals`: then the two are a ``cannot_tell`` pair); else the summary's
 ``cause`` is null,
 ``suggested`` says what the diagnosis named and the verdict why it was not kept. The diagnosis's fits move a few
 parameters beside the cause's; the extend step refits the base with it, which is what a cause the OED fit's base has
@@ -189,6 +190,25 @@ def left_off(cell: Cell, key: str) -> str | None:
     return f"its fit left {key} at off (at most {sizes} of the typical sizes)"
 
 
+def rivals(key: str, summary: dict[str, Any], rejected: set[str]) -> list[str]:
+    """The declared look-alikes of ``key`` (:attr:`battlab.causes.cause.Cause.separates`) that passed their score
+    test on the diagnosis's data and were not extended and rejected: with them the data cannot tell which one the
+    extended cell's gain stands for (lithium lost during the tests shifts the windows as an OCP shift does)."""
+    passed = {r["cause"] for r in summary.get("ranking", []) if r.get("passes")}
+    return [k for k in causes.cause(key).separates if k in passed and k not in rejected]
+
+
+def _pair_verdict(key: str, pair: list[str], row: dict[str, Any], diagnosis: str) -> str:
+    """The verdict for an extended cell that wins the validation tests while a look-alike of its cause passes its
+    score test too."""
+    others = ", ".join(pair)
+    return (
+        f"cannot tell {key} from {others}: the cell extended with {key} predicts the validation tests "
+        f"{row['rmse_before_mV']:.2f} -> {row['rmse_after_mV']:.2f} mV (against the {row['baseline']}), but {others} "
+        f"passes its score test too; told apart by {causes.cause(key).separates[pair[0]]}. The diagnosis: {diagnosis}"
+    )
+
+
 def look_alikes(key: str) -> str:
     """What else a kept cause's extended cell is consistent with, and what tells them apart (the cause's declared
     :attr:`battlab.causes.cause.Cause.separates`), as a sentence for its verdict; empty when none is declared."""
@@ -294,6 +314,7 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
         table: dict[str, Any] = {}
         before = Cell.load(str(cell_path))
         refit: Cell | None = None
+        undecided_pairs: list[dict[str, Any]] = []
         for k, key in enumerate(candidates(s)):
             if refit is None:
                 ctx.progress(0, 0, "refitting the OED cell's base alone (the extend step's control)")
@@ -326,6 +347,11 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
                     f"{row['rmse_before_mV']:.2f} -> {row['rmse_after_mV']:.2f} mV, but {off}: the gain is the "
                     f"base's refit. The diagnosis: {s['verdict']}"
                 )
+            pair = rivals(key, s, {t["cause"] for t in tried}) if named is not None else []
+            if pair:
+                named, why = None, _pair_verdict(key, pair, row, s["verdict"])
+                told = causes.cause(key).separates[pair[0]]
+                undecided_pairs.append({"causes": [key, *pair], "cause": key, "why": why, "experiment": told})
             if named is not None and not by_diagnosis:
                 why = _unnamed_but_kept(key, s, row)
             tried.append({**row, "kept": named is not None})
@@ -335,6 +361,8 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
             if named is not None:
                 cause = named
                 verdict += look_alikes(named)
+                break
+            if pair:
                 break
         summary = {
             "method": "battlab diagnose on the designed experiments, the validation drive cycle held out"
@@ -349,7 +377,7 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
             "extended": tried,
             "how": s.get("how"),
             "verdict": verdict,
-            "cannot_tell": s["cannot_tell"],
+            "cannot_tell": [*s["cannot_tell"], *undecided_pairs],
             "rounds": rounds,
             "undecided": undecided,
             "diagnosis_gain": s["extension_gain"],

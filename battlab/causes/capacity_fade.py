@@ -113,4 +113,8 @@ CAUSE = Cause(
     example={"I_side": 0.005, "alpha_side": 0.5, "lam_n": 0.008, "lam_p": 0.004, "lost_n": 0.04, "lost_p": 0.06},
     validated_by="PyBaMM's reaction-limited SEI with current-driven loss of active material "
     "(benchmarks/bench_extensions.py)",
+    separates={
+        "equilibrium": "capacity checks before and after the tests (a loss during them lowers the capacity and moves "
+        "the windows as the tests go on; shifted OCP curves leave both as they were)"
+    },
 )

@@ -88,3 +88,25 @@ def test_a_kept_cause_says_what_else_its_extended_cell_is_consistent_with() -> N
     text = look_alikes("equilibrium")
     assert text.startswith(" Also consistent with capacity_fade, told apart by capacity checks before and after")
     assert look_alikes("hysteresis") == ""
+
+
+def test_an_extended_cell_whose_cause_has_a_look_alike_passing_its_score_test_is_a_pair_not_a_cause() -> None:
+    """A side current that consumed lithium over a campaign was kept as an equilibrium shift (validation tests 24.80
+    -> 11.54 mV) while capacity_fade passed its score test too: the data cannot say which the gain stands for."""
+    from battlab.campaign.diagnosis import _pair_verdict, rivals
+
+    ranking = [
+        {"cause": "equilibrium", "p_value": 5e-6, "passes": True},
+        {"cause": "capacity_fade", "p_value": 1e-5, "passes": True},
+        {"cause": "hysteresis", "p_value": 3e-4, "passes": True},
+    ]
+    s = {"ranking": ranking}
+    assert rivals("equilibrium", s, set()) == ["capacity_fade"]
+    assert rivals("capacity_fade", s, set()) == ["equilibrium"]
+    assert rivals("equilibrium", s, {"capacity_fade"}) == []  # extended and rejected: told apart
+    assert rivals("equilibrium", {"ranking": ranking[:1]}, set()) == []  # the look-alike did not pass
+    assert rivals("hysteresis", s, set()) == []  # none declared
+    row = {"rmse_before_mV": 24.8, "rmse_after_mV": 11.54, "baseline": "OED cell"}
+    text = _pair_verdict("equilibrium", ["capacity_fade"], row, "d")
+    assert text.startswith("cannot tell equilibrium from capacity_fade: the cell extended with equilibrium predicts")
+    assert "24.80 -> 11.54 mV (against the OED cell)" in text and "told apart by capacity checks" in text
