@@ -14,11 +14,10 @@ cell predicts those tests (never fitted, other profiles than the diagnosis's hel
 diagnosis's own margin than the better of the OED cell and the control, or, for a cause a deciding experiment told
 apart, no worse (:func:`kept`), its fit moved the extension from off (:func:`left_off`) and no declared look-alike
 of it passed its score test too (:func:`rivals`: then the two are a ``cannot_tell`` pair); else the summary's
-``cause`` is null,
-``suggested`` says what the diagnosis named and the verdict why it was not kept. The diagnosis's fits move a few
-parameters beside the cause's; the extend step refits the base with it, which is what a cause the OED fit's base has
-partly taken up needs (a 12 mV graphite hysteresis: its diagnosis fit won the drive cycle by 47 % at 3.0 standard
-errors, short of 4; extended, the validation tests went 20.91 -> 5.71 mV).
+``cause`` is null, ``suggested`` says what the diagnosis named and the verdict why it was not kept. The diagnosis's
+fits move a few parameters beside the cause's; the extend step refits the base with it, which is what a cause the OED
+fit's base has partly taken up needs (a 12 mV graphite hysteresis: its diagnosis fit won the drive cycle by 47 % at
+3.0 standard errors, short of 4; extended, the validation tests went 20.91 -> 5.71 mV).
 """
 
 from __future__ import annotations
