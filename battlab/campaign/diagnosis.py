@@ -337,8 +337,8 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
                 "cell": name,
             }
             by_diagnosis = key == suggested
-            decided = bool(rounds) and by_diagnosis  # a deciding experiment told it from its look-alikes
-            named, why = kept(key, s["verdict"], row, decided, by_diagnosis)
+            told_apart = bool(rounds) and by_diagnosis  # a deciding experiment told it from its look-alikes
+            named, why = kept(key, s["verdict"], row, told_apart, by_diagnosis)
             off = left_off(cells["after"], key) if named is not None else None
             if off is not None:
                 named = None
@@ -347,7 +347,7 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
                     f"{row['rmse_before_mV']:.2f} -> {row['rmse_after_mV']:.2f} mV, but {off}: the gain is the "
                     f"base's refit. The diagnosis: {s['verdict']}"
                 )
-            pair = rivals(key, s, {t["cause"] for t in tried}) if named is not None and not decided else []
+            pair = rivals(key, s, {t["cause"] for t in tried}) if named is not None and not told_apart else []
             if pair:
                 named, why = None, _pair_verdict(key, pair, row, s["verdict"])
                 told = causes.cause(key).separates[pair[0]]
