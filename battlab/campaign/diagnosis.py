@@ -355,7 +355,7 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
             if named is not None and not by_diagnosis:
                 why = _unnamed_but_kept(key, s, row)
             tried.append({**row, "kept": named is not None})
-            if k == 0 or named is not None:
+            if k == 0 or named is not None or pair:
                 gain.update({x: row[x] for x in ("rmse_before_mV", "rmse_after_mV", "baseline")}, cause=key)
                 table, verdict, files["cell"] = rmse, why, f"diagnosis/{name}"
             if named is not None:
