@@ -208,6 +208,32 @@ def _pair_verdict(key: str, pair: list[str], row: dict[str, Any], diagnosis: str
     )
 
 
+def judge(
+    key: str, row: dict[str, Any], extended: Cell, summary: dict[str, Any], rejected: set[str], rounds: bool
+) -> tuple[str | None, str, dict[str, Any] | None]:
+    """One extended cause judged on its validation row (:func:`kept`), its fitted extension (:func:`left_off`) and
+    its look-alikes (:func:`rivals`, unless a deciding experiment (``rounds``) named it): the cause kept or None, the
+    verdict, and the ``cannot_tell`` entry when it is a pair. ``summary``: the diagnosis's; ``rejected``: the causes
+    already extended and not kept."""
+    by_diagnosis = key == summary["cause"]
+    told_apart = rounds and by_diagnosis  # a deciding experiment told it from its look-alikes
+    named, why = kept(key, summary["verdict"], row, told_apart, by_diagnosis)
+    if named is None:
+        return None, why, None
+    if (off := left_off(extended, key)) is not None:
+        why = (
+            f"not confirmed: {key}: the cell extended with it predicts the validation tests "
+            f"{row['rmse_before_mV']:.2f} -> {row['rmse_after_mV']:.2f} mV, but {off}: the gain is the base's "
+            f"refit. The diagnosis: {summary['verdict']}"
+        )
+        return None, why, None
+    if pair := ([] if told_apart else rivals(key, summary, rejected)):
+        why = _pair_verdict(key, pair, row, summary["verdict"])
+        told = causes.cause(key).separates[pair[0]]
+        return None, why, {"causes": [key, *pair], "cause": key, "why": why, "experiment": told}
+    return named, (why if by_diagnosis else _unnamed_but_kept(key, summary, row)), None
+
+
 def look_alikes(key: str) -> str:
     """What else a kept cause's extended cell is consistent with, and what tells them apart (the cause's declared
     :attr:`battlab.causes.cause.Cause.separates`), as a sentence for its verdict; empty when none is declared."""
@@ -336,33 +362,18 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
                 "rmse_refit_mV": mean["refit"],
                 "cell": name,
             }
-            by_diagnosis = key == suggested
-            told_apart = bool(rounds) and by_diagnosis  # a deciding experiment told it from its look-alikes
-            named, why = kept(key, s["verdict"], row, told_apart, by_diagnosis)
-            off = left_off(cells["after"], key) if named is not None else None
-            if off is not None:
-                named = None
-                why = (
-                    f"not confirmed: {key}: the cell extended with it predicts the validation tests "
-                    f"{row['rmse_before_mV']:.2f} -> {row['rmse_after_mV']:.2f} mV, but {off}: the gain is the "
-                    f"base's refit. The diagnosis: {s['verdict']}"
-                )
-            pair = rivals(key, s, {t["cause"] for t in tried}) if named is not None and not told_apart else []
-            if pair:
-                named, why = None, _pair_verdict(key, pair, row, s["verdict"])
-                told = causes.cause(key).separates[pair[0]]
-                undecided_pairs.append({"causes": [key, *pair], "cause": key, "why": why, "experiment": told})
-            if named is not None and not by_diagnosis:
-                why = _unnamed_but_kept(key, s, row)
+            named, why, pair = judge(key, row, cells["after"], s, {t["cause"] for t in tried}, bool(rounds))
+            if pair is not None:
+                undecided_pairs.append(pair)
             tried.append({**row, "kept": named is not None})
-            if k == 0 or named is not None or pair:
+            if k == 0 or named is not None or pair is not None:
                 gain.update({x: row[x] for x in ("rmse_before_mV", "rmse_after_mV", "baseline")}, cause=key)
                 table, verdict, files["cell"] = rmse, why, f"diagnosis/{name}"
             if named is not None:
                 cause = named
                 verdict += look_alikes(named)
                 break
-            if pair:
+            if pair is not None:
                 break
         summary = {
             "method": "battlab diagnose on the designed experiments, the validation drive cycle held out"

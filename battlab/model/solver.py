@@ -38,6 +38,7 @@ from battlab.model.state import (
     check_end,
     guess_algebraic,
     initial_state,
+    surface_end,
 )
 
 __all__ = [
@@ -98,7 +99,7 @@ def _no_right_limit(
     curve folds before the current is reached, and a tester stops at the limit. Otherwise the state before the
     change may itself be beyond a limit (``v_before``, its voltage [V]: the voltage passed the limit during the
     step), or a particle surface in it emptied or filled during the step (``sto_before``: its lowest and highest
-    surface stoichiometry; the end :func:`battlab.model.state.check_end` gives at a sample). Currents in the model's
+    surface stoichiometry; the end :func:`battlab.model.state.surface_end` gives at a sample). Currents in the model's
     sign (positive = discharge)."""
     if I_after > max(I_before, 0.0):
         return (
@@ -112,12 +113,8 @@ def _no_right_limit(
     if v_before < lo or v_before > hi:
         side = f"V < {lo:g}" if v_before < lo else f"V > {hi:g}"
         return f"{side} (reached during the step to t = {t:.6g} s, where the current changes to {-I_after:.4g} A)"
-    if sto_before[0] <= 0.0 or sto_before[1] >= 1.0:
-        edge = 0 if sto_before[0] <= 0.0 else 1
-        return (
-            f"surface stoichiometry reached {edge} (during the step to t = {t:.6g} s, where the current changes to "
-            f"{-I_after:.4g} A)"
-        )
+    if (edge := surface_end(*sto_before)) is not None:
+        return f"{edge} (during the step to t = {t:.6g} s, where the current changes to {-I_after:.4g} A)"
     return f"solver: no right-limit solution at t = {t:.6g} s"
 
 

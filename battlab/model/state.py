@@ -147,8 +147,14 @@ def check_end(
         return f"V > {limits['V_max']:g}"
     if T2[k] > limits["T_max"]:
         return f"T_surface > {limits['T_max'] - 273.15:g} degC"
-    if smin[k] <= 0.0:
+    return surface_end(float(smin[k]), float(smax[k]))
+
+
+def surface_end(smin: float, smax: float) -> str | None:
+    """Why a run ends when a particle surface emptied (lowest surface stoichiometry ``smin`` ≤ 0) or filled
+    (highest ``smax`` ≥ 1), else None."""
+    if smin <= 0.0:
         return "surface stoichiometry reached 0"
-    if smax[k] >= 1.0:
+    if smax >= 1.0:
         return "surface stoichiometry reached 1"
     return None

@@ -110,3 +110,40 @@ def test_an_extended_cell_whose_cause_has_a_look_alike_passing_its_score_test_is
     text = _pair_verdict("equilibrium", ["capacity_fade"], row, "d")
     assert text.startswith("cannot tell equilibrium from capacity_fade: the cell extended with equilibrium predicts")
     assert "24.80 -> 11.54 mV (against the OED cell)" in text and "told apart by capacity checks" in text
+
+
+def test_an_extended_cause_is_judged_on_its_gain_then_its_fitted_size_then_its_look_alikes() -> None:
+    """The order of the extend step's checks: the validation gain against the baseline, an extension left at off, a
+    look-alike that passes its score test too (unless a deciding experiment named the cause); a cause the diagnosis
+    did not name says why it was extended."""
+    from battlab.campaign.diagnosis import judge
+    from battlab.cell import Cell
+
+    cell = Cell.load("nca18650")
+    win = {"rmse_before_mV": 24.8, "rmse_after_mV": 11.54, "baseline": "OED cell", "rmse_oed_mV": 24.8}
+    win["rmse_refit_mV"] = 28.43
+    ranking = [
+        {"cause": "equilibrium", "p_value": 5e-6, "passes": True},
+        {"cause": "capacity_fade", "p_value": 1e-5, "passes": True},
+    ]
+    s = {"cause": None, "verdict": "d", "ranking": ranking, "residual_over_noise": 556.0, "confirmations": []}
+    s["extension_gain"] = {"metric_before": 10.0}
+    moved = cell.with_extension("equilibrium", d_sto_n=0.006)
+    named, why, pair = judge("equilibrium", win, moved, s, set(), False)
+    assert named is None and why.startswith("cannot tell equilibrium from capacity_fade")
+    assert pair is not None and pair["causes"] == ["equilibrium", "capacity_fade"]
+    assert pair["experiment"].startswith("capacity checks before and after")
+    # the look-alike extended and rejected before: kept, with why it was extended though not named
+    named, why, pair = judge("equilibrium", win, moved, s, {"capacity_fade"}, False)
+    assert named == "equilibrium" and pair is None and why.startswith("equilibrium: it passes its score test (p 5e-06)")
+    # named by a deciding experiment: its look-alikes were told apart there
+    named, _, pair = judge("equilibrium", win, moved, {**s, "cause": "equilibrium"}, set(), True)
+    assert named == "equilibrium" and pair is None
+    # left at off: not kept, whatever the gain
+    off = cell.with_extension("equilibrium", d_sto_n=1e-5)
+    named, why, pair = judge("equilibrium", win, off, s, set(), False)
+    assert named is None and pair is None and "its fit left equilibrium at off" in why
+    # no gain: not kept, the gain said first
+    lose = {**win, "rmse_after_mV": 24.0}
+    named, why, pair = judge("equilibrium", lose, moved, s, set(), False)
+    assert named is None and pair is None and "(not 30 % better, against the OED cell)" in why
