@@ -43,14 +43,23 @@ def ocv(camp: Campaign) -> Callable[[StageContext], StageOutput]:
     return run
 
 
+def ocv_cycle(ctx: StageContext) -> Any:
+    """The OCV test's slow cycle (:class:`battlab.identify.ocv_model.SlowCycle`) from its log."""
+    from battlab.identify.ocv_model import slow_cycle
+
+    d = D.load(ctx.path("ocv", "log"))
+    m = D.steps(d, P.OCV_FIRST_STEP)
+    return slow_cycle(d.t, d.current, d.voltage, int(np.flatnonzero(m)[0]), "ocv")
+
+
 def equilibrium(camp: Campaign) -> Callable[[StageContext], StageOutput]:
     def run(ctx: StageContext) -> StageOutput:
         from battlab.campaign.figures import ocv_fit
-        from battlab.identify.ocv_model import MAX_SIMULATIONS, against_truth, fit_equilibrium_model, slow_cycle
+        from battlab.identify.ocv_model import MAX_SIMULATIONS, against_truth, fit_equilibrium_model
 
         d = D.load(ctx.path("ocv", "log"))
         m = D.steps(d, P.OCV_FIRST_STEP)
-        cycle = slow_cycle(d.t, d.current, d.voltage, int(np.flatnonzero(m)[0]), "ocv")
+        cycle = ocv_cycle(ctx)
         n_sim = QUICK_SIMULATIONS if camp.config.quick else MAX_SIMULATIONS
         eq = fit_equilibrium_model(
             cycle,

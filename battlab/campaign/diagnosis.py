@@ -1,23 +1,25 @@
 """The campaign's diagnosis stage: the mission's last step on the campaign's own data.
 
 The OED fit's cell is diagnosed (:func:`battlab.diagnose.workflow.diagnose`) on the designed experiments' logs
-(training) with the held-out validation drive cycle; when the data cannot tell causes apart and ``[diagnosis]
-decide`` is on, the experiment that separates them is designed, run on the tester and added
-(:mod:`battlab.campaign.decide`), within ``budget_hours``. The named cause, or when none is named the causes whose
-fits predicted the held-out drive cycle at least the naming margin better but fell short of its noise margin, then
-where the residual is far above the noise those passing their score test (:func:`candidates`, at most
-:data:`MAX_EXTEND`), is then fitted (the extend step: ``battlab fit`` on the designed experiments and the deciding
-ones, the cause's extension on, its own parameters and then the base moved from the OED fit's cell); so is a control,
-the OED fit's base alone refitted by as many evaluations. The cells are scored on every held-out validation log: the
-residual before and after, against the noise-free truth on the virtual lab. A cause is kept only when its extended
-cell predicts those tests (never fitted, other profiles than the diagnosis's held-out drive cycle) better by the
-diagnosis's own margin than the better of the OED cell and the control, or, for a cause a deciding experiment told
-apart, no worse (:func:`kept`), its fit moved the extension from off (:func:`left_off`) and no declared look-alike
-of it passed its score test too (:func:`rivals`: then the two are a ``cannot_tell`` pair); else the summary's
-``cause`` is null, ``suggested`` says what the diagnosis named and the verdict why it was not kept. The diagnosis's
-fits move a few parameters beside the cause's; the extend step refits the base with it, which is what a cause the OED
-fit's base has partly taken up needs (a 12 mV graphite hysteresis: its diagnosis fit won the drive cycle by 47 % at
-3.0 standard errors, short of 4; extended, the validation tests went 20.91 -> 5.71 mV).
+(training) with the held-out validation drive cycle; when the data cannot tell causes apart and ``[diagnosis] decide``
+is on, the experiment that separates them is designed, run on the tester and added (:mod:`battlab.campaign.decide`),
+within ``budget_hours``. The named cause, or when none is named the causes whose fits predicted the held-out drive cycle
+at least the naming margin better but fell short of its noise margin, then where the residual is far above the noise
+those passing their score test (:func:`candidates`, at most :data:`MAX_EXTEND`), is then fitted (the extend step:
+``battlab fit`` on the designed experiments and the deciding ones, the cause's extension on, its own parameters and then
+the base moved from the OED fit's cell); so is a control, the OED fit's base alone refitted by as many evaluations. A
+cause that changes what the slow (C/20) cycle measures (:attr:`battlab.causes.Cause.slow_cycle`: a current sensor's
+offset moves the charge count the equilibrium stands on) starts its extend step from the equilibrium refitted from the
+OCV test with it on (:func:`refit_equilibrium`), and the control then from the equilibrium refitted alone in the same
+way. The cells are scored on every held-out validation log: the residual before and after, against the noise-free truth
+on the virtual lab. A cause is kept only when its extended cell predicts those tests (never fitted, other profiles than
+the diagnosis's held-out drive cycle) better by the diagnosis's own margin than the better of the OED cell and the
+control, or, for a cause a deciding experiment told apart, no worse (:func:`kept`), its fit moved the extension from off
+(:func:`left_off`) and no declared look-alike of it passed its score test too (:func:`rivals`: then the two are a
+``cannot_tell`` pair); else the summary's ``cause`` is null, ``suggested`` says what the diagnosis named and the verdict
+why it was not kept. The diagnosis's fits move a few parameters beside the cause's; the extend step refits the base with
+it, which is what a cause the OED fit's base has partly taken up needs (a 12 mV graphite hysteresis: its diagnosis fit
+won the drive cycle by 47 % at 3.0 standard errors, short of 4; extended, the validation tests went 20.91 -> 5.71 mV).
 """
 
 from __future__ import annotations
@@ -91,6 +93,45 @@ def _diagnose(
     return dec.report, dec.rounds, dec.undecided
 
 
+#: the equilibrium cell's values a refit of the slow cycle changes (``A`` where the moles needed more room)
+EQUILIBRIUM_VALUES = ("eps_s_n", "eps_s_p", "n_Li", "A")
+
+
+def refit_equilibrium(
+    camp: Campaign, ctx: StageContext, cause: str | None, out: Path
+) -> tuple[dict[str, float], dict[str, Any]]:
+    """The equilibrium refitted from the campaign's OCV test with ``cause``'s extension on and its slow-cycle
+    parameters fitted beside the moles (:attr:`battlab.causes.Cause.slow_cycle`; None: the base cell), to the
+    convergence of the full campaign's equilibrium stage; its report is written to ``out``. Returns the values it
+    sets (:data:`EQUILIBRIUM_VALUES` and the cause's slow-cycle parameters) and a summary: the slow cycle's RMSE
+    [mV], convergence, the capacity [Ah] and each slow-cycle parameter's estimate with its 95 % interval."""
+    from battlab.campaign.characterisation import ocv_cycle
+    from battlab.campaign.context import plain, write_json
+    from battlab.identify.ocv_model import MAX_SIMULATIONS, NUISANCES, fit_equilibrium_model
+
+    c = causes.cause(cause) if cause is not None else None
+    extra = tuple(f"{c.key}.{n}" for n in c.slow_cycle) if c is not None else ()
+    cell = camp.start.with_extension(c.key) if extra else camp.start
+    eq = fit_equilibrium_model(
+        ocv_cycle(ctx),
+        cell,
+        nuisances=(*NUISANCES, *extra),
+        max_simulations=MAX_SIMULATIONS,
+        progress=lambda k, r, s: ctx.progress(k, MAX_SIMULATIONS, f"equilibrium with {cause}: {r:.3f} mV"),
+    )
+    write_json(out, plain(eq.report()))
+    values = {n: float(eq.cell[n]) for n in EQUILIBRIUM_VALUES}
+    fitted = {n: [eq.cell.value(n), *eq.ci95.get(n, (None, None))] for n in extra}
+    summary = {
+        "rmse_mV": eq.rmse_mV,
+        "converged": eq.converged,
+        "capacity_Ah": eq.estimates["capacity_Ah"],
+        "fitted": fitted,
+        "file": out.name,
+    }
+    return {**values, **{n: eq.cell.value(n) for n in extra}}, summary
+
+
 def _extend(
     camp: Campaign,
     ctx: StageContext,
@@ -99,13 +140,15 @@ def _extend(
     train: list[Path],
     preps: tuple[tuple[Path, Path], ...],
     out: Path,
+    equilibrium: dict[str, float] | None = None,
 ) -> Path:
     """The extend step: the named cause's extension switched on in the OED fit's cell and fitted on ``train`` (the
     designed experiments, with their preparations ``preps``, and the deciding ones) in two stages: its own
     parameters (:func:`battlab.diagnose.confirm.mechanism_names`) alone, then with every base parameter the OED fit
     moved (the base had taken up what the cause explains: on a truth with a 12 mV graphite hysteresis the cause's
     parameters alone left the 1C validation discharge at 40 mV). ``cause`` None: the control, the base alone refitted
-    in two stages of the same evaluations (what as many evaluations do without the cause)."""
+    in two stages of the same evaluations (what as many evaluations do without the cause). ``equilibrium``: values
+    the cell starts from instead of the OED cell's (:func:`refit_equilibrium`)."""
     from battlab.diagnose.confirm import mechanism_names
     from battlab.identify.fit_options import FitOptions
     from battlab.identify.workflow import fit
@@ -113,6 +156,8 @@ def _extend(
     cell = Cell.load(str(cell_path))
     c = causes.cause(cause) if cause is not None else None
     start = cell.with_extension(c.key) if c is not None and c.extension is not None else cell
+    if equilibrium:
+        start = start.with_values(**equilibrium)
     names = tuple(mechanism_names(start, c.key, c.qualified_names)) if c is not None else ()
     base = tuple(n for n in ctx.inputs["fit"].summary.get("parameters", {}) if n not in names)
     # every experiment in each stage; the control spends the same two stages of evaluations on the base alone
@@ -340,14 +385,25 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
         before = Cell.load(str(cell_path))
         refit: Cell | None = None
         undecided_pairs: list[dict[str, Any]] = []
-        for k, key in enumerate(candidates(s)):
+        keys = candidates(s)
+        # a cause that changes the slow cycle is fitted with the equilibrium refitted: so is then the control
+        slow = any(causes.cause(k).slow_cycle for k in keys)
+        equilibria: dict[str, Any] = {}
+        for k, key in enumerate(keys):
             if refit is None:
                 ctx.progress(0, 0, "refitting the OED cell's base alone (the extend step's control)")
-                control = _extend(camp, ctx, None, cell_path, [*train, *decided], preps, out / "refit.bpx.json")
+                eq = None
+                if slow:
+                    eq, equilibria["control"] = refit_equilibrium(camp, ctx, None, out / "refit.equilibrium.json")
+                control = _extend(camp, ctx, None, cell_path, [*train, *decided], preps, out / "refit.bpx.json", eq)
                 refit = Cell.load(str(control))
             ctx.progress(0, 0, f"extending the OED cell with {key} and scoring it on the validation tests")
             name = "extended.bpx.json" if k == 0 else f"extended_{key}.bpx.json"
-            extended = _extend(camp, ctx, key, cell_path, [*train, *decided], preps, out / name)
+            eq = None
+            if causes.cause(key).slow_cycle:
+                eq_file = out / name.replace(".bpx.json", ".equilibrium.json")
+                eq, equilibria[key] = refit_equilibrium(camp, ctx, key, eq_file)
+            extended = _extend(camp, ctx, key, cell_path, [*train, *decided], preps, out / name, eq)
             cells = {"before": before, "refit": refit, "after": Cell.load(str(extended))}
             rmse = score(logs, cells, truth, out / ("validation" if k == 0 else f"validation_{key}"))["rmse_mV"]
             mean = {c: sum(v.values()) / len(v) for c, v in rmse.items()}
@@ -394,6 +450,7 @@ def diagnosis(camp: Campaign) -> Callable[[StageContext], StageOutput]:
             "diagnosis_gain": s["extension_gain"],
             "extension_gain": gain,
             "validation_rmse_mV": table,
+            "equilibrium_refit": equilibria,
             "residual_over_noise": s["residual_over_noise"],
             "lab_hours": sum(r["experiment"]["lab_hours"] for r in rounds),
         }

@@ -134,7 +134,7 @@ UNITS: tuple[Unit, ...] = (
         "diagnosis",
         "diagnosis (what the fitted cell still misses, the deciding experiments, the extended cell)",
         diagnosis,
-        ("fit", "validation", "experiments", "noise"),
+        ("ocv", "fit", "validation", "experiments", "noise"),
         ("campaign", "fit", "diagnosis"),
         True,
         ("summary", "report", "cell", "log_*"),

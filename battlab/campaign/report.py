@@ -424,6 +424,28 @@ def diagnosis(view: View) -> Section:
                 "cell and its base refitted alone by the same evaluations (the control)",
             )
         )
+    eqs = dg.get("equilibrium_refit") or {}
+    if eqs:
+        blocks.append(
+            Table(
+                ["refitted with", "OCV test RMSE [mV]", "converged", "capacity [Ah]", "its parameters [95 % interval]"],
+                [
+                    [
+                        k if k != "control" else "the base alone (control)",
+                        e["rmse_mV"],
+                        "yes" if e["converged"] else "no",
+                        e["capacity_Ah"],
+                        "; ".join(
+                            f"{n} {v:.4g}" + (f" [{lo:.4g}, {hi:.4g}]" if lo is not None else "")
+                            for n, (v, lo, hi) in e["fitted"].items()
+                        ),
+                    ]
+                    for k, e in eqs.items()
+                ],
+                caption="the equilibrium refitted from the OCV test for a cause that changes what the slow cycle "
+                "measures, its parameters beside the electrodes' moles (the extend step starts from it)",
+            )
+        )
     table = dg.get("validation_rmse_mV") or {}
     if table:
         names = list(next(iter(table.values())))

@@ -46,7 +46,9 @@ class Cause:
     at any size; ``differentiable_at_off``: its voltage is differentiable at "off" (a score test is possible);
     ``example``: values that switch it on at a realistic size (tests, benchmarks); ``validated_by``: the reference
     it is checked against and where; ``separates``: per other cause that mimics it, the experiment that tells
-    them apart."""
+    them apart; ``slow_cycle``: its parameters (names without the key) that change what the slow (C/20) OCV cycle
+    measures, refitted with the equilibrium when the cause is fitted from a campaign's data (a current sensor's
+    offset moves the charge count the equilibrium stands on)."""
 
     key: str
     title: str
@@ -63,6 +65,7 @@ class Cause:
     example: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
     validated_by: str = ""
     separates: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
+    slow_cycle: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "example", MappingProxyType(dict(self.example)))
@@ -77,6 +80,8 @@ class Cause:
         if bad:
             raise ValueError(f"cause {self.key!r}: parameters {bad} are declared for another cause")
         names = {p.name for p in self.parameters}
+        if set(self.slow_cycle) - names:
+            raise ValueError(f"cause {self.key!r}: slow_cycle names {sorted(set(self.slow_cycle) - names)}, not its")
         if set(self.example) - names:
             raise ValueError(f"cause {self.key!r}: example values for unknown parameters {set(self.example) - names}")
         if self.extension is not None and not self.slots:

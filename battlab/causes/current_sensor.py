@@ -49,4 +49,5 @@ CAUSE = Cause(
     slots=frozenset({"current_measurement"}),
     example={"offset": 0.02, "gain": 0.01},
     validated_by="exact: the cell's current is computed from the logged one (tests/battlab/model)",
+    slow_cycle=("offset",),
 )

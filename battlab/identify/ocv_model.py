@@ -19,9 +19,14 @@ The model gives no sensitivities w.r.t. ε_s± (they are inputs of the compiled 
 trial cell runs on one library), so η is held at the last simulated point while the moles move (their Jacobian
 is the OCV's, exact), the nuisances move with their exact sensitivities, and the DFN is simulated again at the
 result. At the fixed point the residual is the DFN's own; it converges because η depends weakly on the moles, and
-linearly (a one-cycle C/20 test of the virtual cell: 18 simulations to 0.1 σ). Samples where the voltage is steep (the
-ends, |dV/dSOC| > ``slope_max``) or where a branch has just started are left out: there η depends most on what is
-not fitted, and a held η misplaces the knee when the moles move.
+linearly (a one-cycle C/20 test of the virtual cell: 18 simulations to 0.1 σ). Far from it (an unknown stepping by
+more than ``HOLD_SIGMA`` σ) the nuisances wait for the moles; a step that ends the cycle early at its cut-off is
+halved. Samples where the voltage is steep (the ends, |dV/dSOC| > ``slope_max``) or where a branch has just started
+are left out: there η depends most on what is not fitted, and a held η misplaces the knee when the moles move.
+
+A current sensor's offset (``current_sensor.offset`` asked for among the nuisances) is an OCV unknown beside the
+moles: the cell carries (I_log − offset)/(1 + gain), so the offset moves the charge count the stoichiometries are
+counted on (15 mA is 11 % of a C/20 current of an 18650), which no nuisance held in η can follow.
 
 Intervals: 95 % (eq. 46) from the Jacobian [OCV columns | sensitivities] of the last iteration, marginal over the
 nuisances, with the residual's own variance and autocorrelation (:func:`hac_covariance`): no independent noise
@@ -57,6 +62,17 @@ SETTLE_S = 600.0
 MAX_SIMULATIONS = 24
 #: the largest step of a nuisance per simulation, in θ̄
 NUISANCE_STEP = 0.3
+#: while an OCV unknown still steps by more than this many σ, the nuisances are held (far from the fixed point
+#: the held η is far from the DFN's, and the nuisances' linear step with it can take the cycle past its cut-off)
+HOLD_SIGMA = 30.0
+#: a step after which fewer than this fraction of the fitted samples are simulated (the cycle ended at its cut-off)
+#: is halved
+SHORT_FRACTION = 0.9
+#: a current sensor's offset, when asked for among the nuisances, is an OCV unknown (it moves the charge count);
+#: its step scale [A]
+SENSOR = "current_sensor"
+OFFSET = f"{SENSOR}.offset"
+OFFSET_SCALE_A = 1e-4
 
 
 @dataclass(frozen=True)
@@ -219,7 +235,10 @@ def fit_equilibrium_model(
 ) -> ModelEquilibrium:
     """Fit H±, n_Li and θ⁻₀ (and the ``nuisances``) to ``cycle`` with ``cell``'s OCPs, geometry and other dynamic
     values (see the module docstring). ``start``: the pseudo-OCV fit to start from (default: made here). Stops when
-    a step moves no unknown by more than ``tol_sigma`` of its σ, or after ``max_simulations``."""
+    a step moves no unknown by more than ``tol_sigma`` of its σ, or after ``max_simulations``. ``current_sensor.offset``
+    among the nuisances (the cell carrying the extension) is fitted with the moles: the cell carries
+    (I_log − offset)/(1 + gain), so the offset moves the charge count itself (15 mA at C/20 is 11 % of it); the gain
+    stays at the cell's value (it scales every mole alike: the slow cycle cannot tell it from the capacity)."""
     from battlab.identify.forward import ForwardModel
 
     w0 = time.perf_counter()
@@ -230,29 +249,49 @@ def fit_equilibrium_model(
     use = fitted_samples(cycle, start.capacity) if mask is None else np.asarray(mask, bool)
     if use.sum() < 50:
         raise InputError(f"{where}: only {int(use.sum())} samples away from the ends and the branches' starts")
-    q = np.concatenate([[0.0], np.cumsum(cycle.current[:-1] * np.diff(cycle.t))])  # C, + = charge
+    q = np.concatenate([[0.0], np.cumsum(cycle.current[:-1] * np.diff(cycle.t))])  # C, + = charge (logged)
     V = cycle.voltage
     prof = Profile(cycle.t, cycle.current)
+    # a cell with a current sensor carries I = (I_log − offset)/(1 + gain): its charge count moves with the offset
+    # (an OCV unknown like θ⁻₀; the gain scales every mole alike, so the slow cycle does not inform it)
+    sensor = OFFSET in nuis
+    nuis = tuple(n for n in nuis if n != OFFSET)
+    gain = cell.value(f"{SENSOR}.gain") if sensor else 0.0
+    nx = 5 if sensor else 4
 
     def ocv(x: np.ndarray) -> np.ndarray:
-        hn, hp, nli, tn0 = x
-        tn = tn0 + q / (F * hn)
+        hn, hp, nli, tn0 = x[:4]
+        qc = (q - x[4] * cycle.t) / (1.0 + gain) if sensor else q
+        tn = tn0 + qc / (F * hn)
         tp = (nli - hn * tn) / hp
         return cell.fn("U_p", np.clip(tp, 1e-9, 1 - 1e-9)) - cell.fn("U_n", np.clip(tn, 1e-9, 1 - 1e-9))
 
     x = np.array([start.H_n, start.H_p, start.n_Li, start.theta_n0])
-    th = np.array([cell.normalised(n) for n in nuis])
     scale = np.abs(x) * 1e-3
+    if sensor:
+        x = np.r_[x, cell.value(OFFSET)]
+        scale = np.r_[scale, OFFSET_SCALE_A]
+    th = np.array([cell.normalised(n) for n in nuis])
     iters: list[Iteration] = []
     converged, message = False, f"not converged in {max_simulations} simulations"
     fm: ForwardModel | None = None
     J, rows = np.zeros((0, 0)), use
+    last: tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray] | None = None  # the step before
     for _ in range(max_simulations):
         t0 = time.perf_counter()
         out = _simulate(fm, cell, x, th, nuis, prof, where)
         fm = out.model
         eta = out.voltage - ocv(x)
         ok = use & np.isfinite(eta)
+        if last is not None and ok.sum() < SHORT_FRACTION * last[2]:
+            # the step ended the cycle early (past its cut-off): back to where it began, half the step
+            x0, th0, n0, dx, dth = last
+            x, th = x0 + dx / 2, th0 + dth / 2
+            fm = None if np.any(dx[:3]) else fm
+            last = (x0, th0, n0, dx / 2, dth / 2)
+            continue
+        if ok.sum() < 50:
+            raise InputError(f"{where}: the model of the cycle ends at its cut-off before the samples it would fit")
         rmse = float(1e3 * np.sqrt(np.mean((out.voltage - V)[ok] ** 2)))
 
         at = x.copy()
@@ -260,11 +299,11 @@ def fit_equilibrium_model(
         def residual(
             z: np.ndarray, x: np.ndarray = at, eta: np.ndarray = eta, S: np.ndarray = out.S, ok: np.ndarray = ok
         ) -> np.ndarray:
-            return (ocv(x + z[:4] * scale) + eta + S @ z[4:] - V)[ok]
+            return (ocv(x + z[:nx] * scale) + eta + S @ z[nx:] - V)[ok]
 
-        lo = np.r_[np.full(4, -np.inf), -th]
-        hi = np.r_[np.full(4, np.inf), 1.0 - th]
-        sol = least_squares(residual, np.zeros(4 + len(nuis)), bounds=(lo, hi), method="trf", x_scale="jac")
+        lo = np.r_[np.full(nx, -np.inf), -th]
+        hi = np.r_[np.full(nx, np.inf), 1.0 - th]
+        sol = least_squares(residual, np.zeros(nx + len(nuis)), bounds=(lo, hi), method="trf", x_scale="jac")
         J, rows = sol.jac, ok
         dof = max(int(ok.sum()) - J.shape[1], 1)
         cov = float(2 * sol.cost / dof) * np.linalg.pinv(J.T @ J)
@@ -278,16 +317,22 @@ def fit_equilibrium_model(
             converged, message = True, f"converged: the last step moved no unknown by more than {steps.max():.2g} σ"
             break
         # the nuisances' linearisation holds for modest steps: the whole step shrinks to at most NUISANCE_STEP in θ̄
-        z = sol.x * min(1.0, NUISANCE_STEP / max(float(np.max(np.abs(sol.x[4:]), initial=0.0)), 1e-300))
-        th = np.clip(th + z[4:], 0.0, 1.0)
-        x[3] += z[3] * scale[3]
+        z = sol.x * min(1.0, NUISANCE_STEP / max(float(np.max(np.abs(sol.x[nx:]), initial=0.0)), 1e-300))
+        if steps[:nx].max() >= HOLD_SIGMA:  # far from the fixed point: the OCV unknowns move first, alone
+            z = np.r_[sol.x[:nx], np.zeros(len(nuis))]
+        x0, th0 = x.copy(), th.copy()
+        th = np.clip(th + z[nx:], 0.0, 1.0)
+        x[3:] += z[3:nx] * scale[3:]
         if steps[:3].max() >= tol_sigma:  # a new cell only when the moles or the lithium move
             x[:3] += z[:3] * scale[:3]
             fm = None
+        last = (x0, th0, int(ok.sum()), x - x0, th - th0)
     end = _simulate(fm, cell, x, th, nuis, prof, where, sensitivities=False)
     vd = end.voltage
-    hn, hp, nli, tn0 = (float(v) for v in x)
+    hn, hp, nli, tn0 = (float(v) for v in x[:4])
     new = cell_with_moles(cell, hn, hp, nli)
+    if sensor:
+        new = new.with_values(**{OFFSET: float(x[4])})
     ok = use & np.isfinite(vd)
     dof = max(int(ok.sum()) - J.shape[1], 1)
     s2 = float(np.sum((vd - V)[ok] ** 2) / dof)
@@ -306,6 +351,15 @@ def fit_equilibrium_model(
     ci["capacity_Ah"] = _capacity_interval(
         new, np.array([hn, hp, nli]), cov[:3, :3] * np.outer(scale[:3], scale[:3]), tval
     )
+    for j, n in enumerate(nuis):  # an extension's parameter fitted as a nuisance: its interval too
+        if n in parameters.EXTENSION_SPECS:
+            sp, s_th = parameters.spec(n), float(np.sqrt(max(cov[nx + j, nx + j], 0.0)))
+            lo, hi = (sp.denormalise(float(np.clip(th[j] + d * tval * s_th, 0.0, 1.0))) for d in (-1, 1))
+            ci[n] = (lo, hi)
+    if sensor:
+        s_off = float(np.sqrt(max(cov[4, 4], 0.0))) * scale[4]
+        est[OFFSET] = float(x[4])
+        ci[OFFSET] = (float(x[4]) - tval * s_off, float(x[4]) + tval * s_off)
     return ModelEquilibrium(
         cell=new.renamed(f"{cell.name}-ocv", f"{cell.description} (equilibrium identified with the full model)"),
         H_n=hn,
@@ -314,7 +368,7 @@ def fit_equilibrium_model(
         theta_n0=tn0,
         estimates=est,
         ci95=ci,
-        nuisances={n: parameters.SPECS[n].denormalise(float(v)) for n, v in zip(nuis, th, strict=True)},
+        nuisances={n: parameters.spec(n).denormalise(float(v)) for n, v in zip(nuis, th, strict=True)},
         s2=s2,
         rmse_mV=float(1e3 * np.sqrt(np.mean((vd - V)[ok] ** 2))),
         rmse_all_mV=float(1e3 * np.sqrt(np.nanmean((vd - V) ** 2))),
@@ -363,13 +417,15 @@ def _simulate(
     model built for these moles (None: build it)."""
     from battlab.identify.forward import ForwardModel
 
-    hn, hp, nli, tn0 = (float(v) for v in x)
+    hn, hp, nli, tn0 = (float(v) for v in x[:4])
     tp0 = (nli - hn * tn0) / hp
     if not (0 < tn0 < 1 and 0 < tp0 < 1):
         raise InputError(f"{where}: the start stoichiometries left (0, 1) (θ⁻ {tn0:.4f}, θ⁺ {tp0:.4f})")
     model = fm if isinstance(fm, ForwardModel) else ForwardModel(cell_with_moles(cell, hn, hp, nli), v_margin=0.5)
     theta = model.cell.theta_bar()
     theta[[model.names.index(n) for n in nuis]] = th
+    if x.size > 4:  # the current sensor's offset [A]
+        theta[model.names.index(OFFSET)] = parameters.spec(OFFSET).normalise(float(x[4]))
     names = tuple(nuis) if sensitivities else ()
     out = model.run(theta, prof, 1.0, start=(tn0, tp0), sensitivities=names)
     n = prof.t.size

@@ -100,3 +100,16 @@ def test_the_diagnosis_section_shows_each_cause_extended_and_the_one_kept(tmp_pa
     html = render("t", [diagnosis(View(tmp_path, {"diagnosis": dg1}, {}, None, tmp_path))])
     assert "<th>base refit [mV]</th>" in html and "<td>17.12</td>" in html and "<td>33</td>" in html
     assert "beside its base refitted alone by the same evaluations" in html
+    # a cause that changes the slow cycle: the equilibrium refitted with it, beside the control's
+    eqs = {
+        "control": {"rmse_mV": 50.27, "converged": True, "capacity_Ah": 2.968, "fitted": {}},
+        "current_sensor": {
+            "rmse_mV": 0.0885,
+            "converged": True,
+            "capacity_Ah": 2.714,
+            "fitted": {"current_sensor.offset": [0.01497, 0.0146, 0.0153]},
+        },
+    }
+    html = render("t", [diagnosis(View(tmp_path, {"diagnosis": dg1 | {"equilibrium_refit": eqs}}, {}, None, tmp_path))])
+    assert "the equilibrium refitted from the OCV test" in html and "<td>the base alone (control)</td>" in html
+    assert "current_sensor.offset 0.01497 [0.0146, 0.0153]" in html and "<td>50.27</td>" in html

@@ -149,3 +149,21 @@ def test_an_unknown_cause_is_one_error_with_a_suggestion() -> None:
         causes.cause("hysteresys")
     with pytest.raises(InputError, match=r"did you mean 'contact_resistance'"):
         Cell.load("nca18650").with_extension("contact_resistence")
+
+
+def test_a_cause_refits_with_the_equilibrium_only_parameters_of_its_own() -> None:
+    """``slow_cycle`` names parameters the campaign's equilibrium refit fits beside the moles: they must be the
+    cause's; the current sensor's offset is one (it moves the charge count)."""
+    assert causes.cause("current_sensor").slow_cycle == ("offset",)
+    sensor = causes.cause("current_sensor")
+    with pytest.raises(ValueError, match=r"slow_cycle names \['R_c'\], not its"):
+        Cause(
+            key=sensor.key,
+            title="x",
+            mechanism="x",
+            informed_by=Evidence("pulse", "x"),
+            extension=sensor.extension,
+            parameters=sensor.parameters,
+            slots=sensor.slots,
+            slow_cycle=("R_c",),
+        )
