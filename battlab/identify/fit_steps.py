@@ -114,7 +114,7 @@ def experiments_of(o: FitOptions, dyn: Sequence[Any], cell: Cell) -> tuple[list[
         )
         prep = preps.get(Path(d.source).resolve()) if d.source else None
         if prep is not None and es:  # the measurement's first experiment starts with its preparation
-            es[0] = runlog.after_preparation(es[0], prep, cell)
+            es[0] = runlog.after_preparation(es[0], prep, cell, log=d)
         pairs += [(e, d.name) for e in es]
     exps = unique_names([e for e, _ in pairs])
     return exps, {e.name: f for e, (_, f) in zip(exps, pairs, strict=True)}

@@ -36,6 +36,31 @@ def test_a_prepared_measurement_starts_at_the_full_charge_with_its_preparation_u
     assert o.soc_span == PREPARED_SOC_SPAN and FitOptions((str(meas),), "nca18650").soc_span == 0.0
 
 
+def test_the_lead_in_keeps_the_measurements_own_rest_before_its_profile(tmp_path: Path, prepared_measurement) -> None:
+    """A measurement cut from its run log at its profile step (``log_row``): its 60 s rest before the profile
+    relaxes the cell after the preparation, so it is part of the lead-in (the preparation's rest after full charge
+    to its end, 3830 s, then those 60 s), not skipped."""
+    from battlab.identify import runlog
+    from battlab.identify.experiments import experiments_from_data
+    from battlab.io.data import LoggedData
+
+    cell = Cell.load("nca18650")
+    prep, meas = prepared_measurement(tmp_path)
+    (log, prep_log), _ = load_all([str(meas), str(prep)])
+    sub = LoggedData("48", {c: v[60:] for c, v in log.columns.items()}, dict(log.meta), log.source)
+    (cut,) = experiments_from_data(sub, cell, soc0=0.8)
+    cut = replace(cut, profile=cut.profile.with_meta(params={**cut.profile.params, "log_row": 60}))
+    e = runlog.after_preparation(cut, prep_log, cell, log=log)
+    assert e.profile.t[e.lead_in] - e.profile.t[0] == pytest.approx(3830.0 + 60.0, abs=1e-2)
+    assert np.all(e.profile.current[e.lead_in - 6 : e.lead_in] == 0.0)  # the rest, in 10 s bins
+    assert e.profile.current[e.lead_in] == -4.0 and e.mask[: e.lead_in].sum() == 0
+    np.testing.assert_allclose(e.scored_voltage, cut.voltage)
+    assert e.soc0 == 1.0
+    # without its log the lead-in is the preparation alone
+    alone = runlog.after_preparation(cut, prep_log, cell)
+    assert alone.profile.t[alone.lead_in] - alone.profile.t[0] == pytest.approx(3830.0, abs=1e-2)
+
+
 def test_a_preparation_of_no_data_file_or_a_bad_span_is_one_clear_error(tmp_path: Path, prepared_measurement) -> None:
     prep, meas = prepared_measurement(tmp_path)
     with pytest.raises(InputError, match=r"--preparation other\.h5=.*not one of the data files"):
