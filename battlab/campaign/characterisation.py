@@ -43,11 +43,10 @@ def ocv(camp: Campaign) -> Callable[[StageContext], StageOutput]:
     return run
 
 
-def ocv_cycle(ctx: StageContext) -> Any:
-    """The OCV test's slow cycle (:class:`battlab.identify.ocv_model.SlowCycle`) from its log."""
+def ocv_cycle(d: Any) -> Any:
+    """The OCV test's slow cycle (:class:`battlab.identify.ocv_model.SlowCycle`) from its loaded log."""
     from battlab.identify.ocv_model import slow_cycle
 
-    d = D.load(ctx.path("ocv", "log"))
     m = D.steps(d, P.OCV_FIRST_STEP)
     return slow_cycle(d.t, d.current, d.voltage, int(np.flatnonzero(m)[0]), "ocv")
 
@@ -59,7 +58,7 @@ def equilibrium(camp: Campaign) -> Callable[[StageContext], StageOutput]:
 
         d = D.load(ctx.path("ocv", "log"))
         m = D.steps(d, P.OCV_FIRST_STEP)
-        cycle = ocv_cycle(ctx)
+        cycle = ocv_cycle(d)
         n_sim = QUICK_SIMULATIONS if camp.config.quick else MAX_SIMULATIONS
         eq = fit_equilibrium_model(
             cycle,

@@ -105,6 +105,7 @@ def refit_equilibrium(
     convergence of the full campaign's equilibrium stage; its report is written to ``out``. Returns the values it
     sets (:data:`EQUILIBRIUM_VALUES` and the cause's slow-cycle parameters) and a summary: the slow cycle's RMSE
     [mV], convergence, the capacity [Ah] and each slow-cycle parameter's estimate with its 95 % interval."""
+    from battlab.campaign import data as D
     from battlab.campaign.characterisation import ocv_cycle
     from battlab.campaign.context import plain, write_json
     from battlab.identify.ocv_model import MAX_SIMULATIONS, NUISANCES, fit_equilibrium_model
@@ -113,15 +114,15 @@ def refit_equilibrium(
     extra = tuple(f"{c.key}.{n}" for n in c.slow_cycle) if c is not None else ()
     cell = camp.start.with_extension(c.key) if extra else camp.start
     eq = fit_equilibrium_model(
-        ocv_cycle(ctx),
+        ocv_cycle(D.load(ctx.path("ocv", "log"))),
         cell,
         nuisances=(*NUISANCES, *extra),
         max_simulations=MAX_SIMULATIONS,
         progress=lambda k, r, s: ctx.progress(k, MAX_SIMULATIONS, f"equilibrium with {cause}: {r:.3f} mV"),
     )
     write_json(out, plain(eq.report()))
-    values = {n: float(eq.cell[n]) for n in EQUILIBRIUM_VALUES}
-    fitted = {n: [eq.cell.value(n), *eq.ci95.get(n, (None, None))] for n in extra}
+    own = {n: eq.cell.value(n) for n in extra}
+    fitted = {n: [v, *eq.ci95.get(n, (None, None))] for n, v in own.items()}
     summary = {
         "rmse_mV": eq.rmse_mV,
         "converged": eq.converged,
@@ -129,7 +130,7 @@ def refit_equilibrium(
         "fitted": fitted,
         "file": out.name,
     }
-    return {**values, **{n: eq.cell.value(n) for n in extra}}, summary
+    return {**{n: float(eq.cell[n]) for n in EQUILIBRIUM_VALUES}, **own}, summary
 
 
 def _extend(

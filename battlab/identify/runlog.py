@@ -234,7 +234,7 @@ def after_preparation(
     row = e.profile.params.get("log_row") if log is not None else None
     if log is not None and isinstance(row, int) and 0 < row < len(log):
         i_rest = 0.01 * float(cell["Q_nom"])
-        if np.max(np.abs(log.current[: row + 1][:-1])) <= i_rest:
+        if np.max(np.abs(log.current[:row])) <= i_rest:
             e = with_lead_in(e, log, 0, row, e.soc0)
     step2 = prep.columns[STEP_INDEX] == 2 if STEP_INDEX in prep.columns else np.zeros(len(prep), bool)
     first = np.flatnonzero(step2)
