@@ -38,6 +38,7 @@ class Key:
     required: bool = True
     positive: bool = True  # a value ≤ 0 is physically impossible
     fraction: bool = False  # must lie in (0, 1)
+    default: float | None = None  # taken when an optional key is absent
 
 
 def _electrode(s: str, name: str) -> dict[str, Key]:
@@ -55,6 +56,13 @@ def _electrode(s: str, name: str) -> dict[str, Key]:
         f"B_{s}": Key("1", f"{name} electrolyte transport efficiency (overrides Bruggeman)", required=False),
         f"k_{s}": Key("A/m2 (m3/mol)^1.5", f"{name} reaction rate constant at T_ref (eq. A18)"),
         f"R_f_{s}": Key("Ohm m2", f"{name} film resistance (eq. A19)", positive=False),
+        f"E_R_f_{s}": Key(
+            "J/mol",
+            f"{name} activation energy of the film's conductance (B5: R_f falls as T rises; absent: 0)",
+            required=False,
+            positive=False,
+            default=0.0,
+        ),
         f"U_{s}": Key("V", f"{name} open-circuit potential at T_ref", "sto"),
         f"dUdT_{s}": Key("V/K", f"{name} entropic coefficient", "sto", positive=False),
         f"E_D_s_{s}": Key("J/mol", f"{name} activation energy of D_s (eq. B5)", positive=False),
@@ -162,6 +170,7 @@ class Cell:
 
     def __post_init__(self) -> None:
         vals = {k: _check_value(k, v) for k, v in self.values.items()}
+        vals |= {k: s.default for k, s in KEYS.items() if s.default is not None and k not in vals}
         missing = [k for k, s in KEYS.items() if s.required and k not in vals]
         if missing:
             raise InputError(f"cell {self.name!r}: missing parameter(s) {', '.join(missing)}")

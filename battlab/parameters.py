@@ -48,7 +48,7 @@ EQUILIBRIUM_TRUTH: dict[str, float] = {"eps_s_n": 0.5438895, "eps_s_p": 0.666364
 #: Values of a cell that the compiled model takes as inputs beside θ̄, so that cells that differ only in them share
 #: one compiled model instead of compiling one per trial point: the equilibrium fit moves the electrode moles
 #: (through ε_s±, and the area A where they need more room); a thermal fit the heat capacities and transfer
-#: coefficients (B1–B3); an Arrhenius fit the activation energies (B5).
+#: coefficients (B1–B3); an Arrhenius fit the activation energies (B5, and the films' of A19).
 MODEL_INPUTS: tuple[str, ...] = (
     "A",
     "eps_s_n",
@@ -63,6 +63,8 @@ MODEL_INPUTS: tuple[str, ...] = (
     "E_k_p",
     "E_D_e",
     "E_kappa",
+    "E_R_f_n",
+    "E_R_f_p",
 )
 #: Values the model's equations never read (the start state is made from them in Python): the cyclable lithium
 #: and the stoichiometry window.

@@ -36,7 +36,8 @@ class Thermal(Extension):
     requires_thermal: ClassVar[bool] = True
 
     def activation(self, c: Evaluation, key: str, E: ca.SX | float) -> ca.SX | float:
-        return E + self.p(c, "d" + key)
+        """The six energies of :data:`ACTIVATED` moved by their changes; the films' (E_R_f±) as the cell has them."""
+        return E + self.p(c, "d" + key) if key.removeprefix("E_") in ACTIVATED else E
 
     def heat(self, c: Evaluation, thermal: dict[str, ca.SX | float]) -> dict[str, ca.SX | float]:
         k = self.p(c, "C_scale")
@@ -75,7 +76,7 @@ CAUSE = Cause(
         "drive",
         "the same profile at two ambient temperatures (activation energies act only through a change of temperature)",
     ),
-    base=("C1", "C2", "h12", "h2a", "E_D_s_n", "E_D_s_p", "E_k_n", "E_k_p", "E_D_e", "E_kappa"),
+    base=("C1", "C2", "h12", "h2a", "E_D_s_n", "E_D_s_p", "E_k_n", "E_k_p", "E_D_e", "E_kappa", "E_R_f_n", "E_R_f_p"),
     extension=Thermal,
     parameters=(
         *(

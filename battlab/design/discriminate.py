@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -83,6 +84,28 @@ def _t_criterion(ya: np.ndarray, yb: np.ndarray, Sb: np.ndarray, w: np.ndarray) 
     return float(rest @ rest)
 
 
+def _anchored(
+    models: Mapping[str, tuple[Cell, Sequence[str]]], profile: Profile, soc0: float, ambient: float, runs: dict
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per model (voltage, sensitivities) of the option's run stacked on the same profile's run at ``ambient``
+    (the anchor: a refit must keep the data already taken there); the option's run alone where the anchor run stops."""
+    from battlab.simulation import simulate
+
+    out = {}
+    for key, (cell, names) in models.items():
+        r = runs[key]
+        a = simulate(cell, profile, soc0=soc0, ambient=ambient, T0=ambient, sensitivities=list(names))
+        if a.ended_by is not None or a.voltage.size < profile.t.size:
+            return {k: (v.voltage, _sens(v)) for k, v in runs.items()}
+        out[key] = (np.concatenate([r.voltage, a.voltage]), np.vstack([_sens(r), _sens(a)]))
+    return out
+
+
+def _sens(res: Any) -> np.ndarray:
+    """A simulation's sensitivities (an empty block when it computed none)."""
+    return res.sensitivities if res.sensitivities is not None else np.zeros((res.voltage.size, 0))
+
+
 def weigh(
     models: Mapping[str, tuple[Cell, Sequence[str]]],
     profile: Profile,
@@ -90,9 +113,13 @@ def weigh(
     ambient: float,
     noise: NoiseModel,
     limits: tuple[float, float, float],
+    anchor: float | None = None,
 ) -> Option:
     """The option of one profile at one ambient: ``models`` maps each cause to its fitted cell and the parameters
-    it would refit; ``limits`` (V_min, V_max [V], T_max [K]) those of the run."""
+    it would refit; ``limits`` (V_min, V_max [V], T_max [K]) those of the run. ``anchor`` [K]: the ambient of the
+    data already taken; at another ambient each refit must also keep the same profile's prediction there (a nested
+    alternative that a base parameter mimics at the anchor shows where that parameter's temperature dependence
+    differs from the alternative's)."""
     from battlab.simulation import simulate
 
     v_min, v_max, t_max = limits
@@ -106,15 +133,18 @@ def weigh(
         if res.T_surface is not None and float(np.max(res.T_surface)) > t_max:
             return Option(str(profile.id), ambient, 0.0, 0.0, f"{key}: the surface passes {t_max - 273.15:.0f} degC")
         runs[key] = res
+    if anchor is not None and abs(anchor - ambient) > 0.5:
+        stacked = _anchored(models, profile, soc0, anchor, runs)
+    else:
+        stacked = {k: (r.voltage, _sens(r)) for k, r in runs.items()}
     q = noise.q(profile)
-    w = np.full(profile.t.size, 1.0 / max(q, noise.floor) ** 2)
-    keys = list(runs)
+    keys = list(stacked)
+    w = np.full(stacked[keys[0]][0].size, 1.0 / max(q, noise.floor) ** 2)
     t = np.inf
     for a in keys:
         for b in keys:
             if a != b:
-                sb = runs[b].sensitivities if runs[b].sensitivities is not None else np.zeros((w.size, 0))
-                t = min(t, _t_criterion(runs[a].voltage, runs[b].voltage, sb, w))
+                t = min(t, _t_criterion(stacked[a][0], stacked[b][0], stacked[b][1], w))
     hours = float(profile.t[-1] - profile.t[0]) / 3600.0 + PREPARATION_H
     return Option(str(profile.id), ambient, float(t), hours)
 
@@ -127,16 +157,17 @@ def discriminate(
     noise: NoiseModel | None = None,
     limits: tuple[float, float, float] | None = None,
     budget_hours: float | None = None,
+    anchor: float | None = None,
 ) -> Discrimination:
     """Weigh every profile (at its ``soc0``) at every ambient [K] and choose (see the module docstring); options over
-    ``budget_hours`` are excluded."""
+    ``budget_hours`` are excluded; ``anchor``: see :func:`weigh`."""
     noise = noise or NoiseModel()
     first = next(iter(models.values()))[0]
     lim = limits or (float(first["V_min"]), float(first["V_max"]), float(first["T_max"]))
     options = []
     for amb in ambients:
         for p in profiles:
-            o = weigh(models, p, float(p.soc0 if p.soc0 is not None else 0.5), float(amb), noise, lim)
+            o = weigh(models, p, float(p.soc0 if p.soc0 is not None else 0.5), float(amb), noise, lim, anchor)
             if o.excluded is None and budget_hours is not None and o.hours > budget_hours:
                 o = Option(o.profile_id, o.ambient, o.divergence, o.hours, f"{o.hours:.1f} h over the budget")
             options.append(o)

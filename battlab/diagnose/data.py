@@ -2,8 +2,10 @@
 voltage), checked against the cell, split into training and held-out parts.
 
 Training and held-out parts: with one file its final :data:`HELD_OUT_FRACTION` of samples is held out; with several
-the last file is (or those given as ``held_out``; a held-out file not among the data is added). Data and cell that
-do not match (voltage outside the cell's window, rest voltage outside its OCV range, more charge than
+the last file is (or those given as ``held_out``; a held-out file not among the data is added); with ``tail`` only the
+final :data:`HELD_OUT_FRACTION` of each held-out file is, its beginning trains (an experiment at a condition no other
+file reaches, e.g. another ambient: the fits must see part of it to pin what only it shows, and predict the rest).
+Data and cell that do not match (voltage outside the cell's window, rest voltage outside its OCV range, more charge than
 :data:`CAPACITY_FACTOR` times its capacity, a simulation that stops before half the data) are one
 :class:`InputError`.
 """
@@ -71,24 +73,35 @@ class Part:
         return replace(e, profile=prof, voltage=e.voltage[:k], variance=var, **cut)
 
 
+def _tail_parts(exps: list[Experiment]) -> list[Part]:
+    """One file's experiments with the final :data:`HELD_OUT_FRACTION` of their samples held out."""
+    total = sum(e.voltage.size for e in exps)
+    cut = int(round((1.0 - HELD_OUT_FRACTION) * total))
+    parts, seen = [], 0
+    for e in exps:
+        parts.append(Part(e, int(np.clip(cut - seen, 0, e.voltage.size))))  # a lead-in is never held out
+        seen += e.voltage.size
+    return parts
+
+
 def split(
-    data_parts: list[tuple[str, list[Experiment]]], held_out: Sequence[str] | str | None
+    data_parts: list[tuple[str, list[Experiment]]], held_out: Sequence[str] | str | None, tail: bool = False
 ) -> tuple[list[Part], str]:
     """Training and held-out parts of the experiments of each file (see the module docstring), and the name of
     the held-out data (several: joined by " + ")."""
     hold = (held_out,) if isinstance(held_out, str) else tuple(held_out or ())
     if not hold and len(data_parts) == 1:
         name, exps = data_parts[0]
-        total = sum(e.voltage.size for e in exps)
-        cut = int(round((1.0 - HELD_OUT_FRACTION) * total))
-        parts, seen = [], 0
-        for e in exps:
-            parts.append(Part(e, int(np.clip(cut - seen, 0, e.voltage.size))))  # a lead-in is never held out
-            seen += e.voltage.size
-        return parts, f"{name} (final {100 * HELD_OUT_FRACTION:.0f} %)"
+        return _tail_parts(exps), f"{name} (final {100 * HELD_OUT_FRACTION:.0f} %)"
     hold = hold or (data_parts[-1][0],)
-    parts = [Part(e, 0 if name in hold else e.voltage.size) for name, exps in data_parts for e in exps]
-    return parts, " + ".join(dict.fromkeys(hold))
+    parts = []
+    for name, exps in data_parts:
+        if name not in hold:
+            parts += [Part(e, e.voltage.size) for e in exps]
+        else:
+            parts += _tail_parts(exps) if tail else [Part(e, 0) for e in exps]
+    names = " + ".join(dict.fromkeys(hold))
+    return parts, f"{names} (final {100 * HELD_OUT_FRACTION:.0f} %)" if tail else names
 
 
 def _file_key(path: str | Path, data: Any) -> set[str]:
@@ -157,11 +170,12 @@ def prepare(
     fix_sign: bool,
     preparations: Sequence[tuple[str | Path, str | Path]] = (),
     full_charge_soc: float = 1.0,
+    held_out_tail: bool = False,
 ) -> Prepared:
     """Load, check and split the data (see the module docstring; ``held_out``: the files to hold out, none for
-    the default). ``preparations``: (data file, the log of its preparation): the file's first experiment starts at
-    the preparation's full charge, the preparation simulated as its unscored lead-in
-    (:func:`battlab.identify.runlog.after_preparation`), from ``full_charge_soc``."""
+    the default; ``held_out_tail``: only their final part). ``preparations``: (data file, the log of its
+    preparation): the file's first experiment starts at the preparation's full charge, the preparation simulated as
+    its unscored lead-in (:func:`battlab.identify.runlog.after_preparation`), from ``full_charge_soc``."""
     from battlab.identify import runlog
     from battlab.identify.experiments import experiments_from_data
 
@@ -183,7 +197,7 @@ def prepare(
         data_parts.append((d.name, exps))
         if any(str(h) in _file_key(p, d) for h in held_out):
             hold_names.append(d.name)
-    parts, held_name = split(data_parts, hold_names)
+    parts, held_name = split(data_parts, hold_names, held_out_tail)
     train = [e for e in (p.training() for p in parts) if e is not None]
     if not train:
         raise InputError("diagnose: no training data left (give more than the held-out file)")

@@ -111,7 +111,8 @@ class DiagnoseOptions:
     reported in the summary's ``also_fitted`` (not used in the decision: an outside check of what the data can show);
     ``preparations``: (data file, the log of its preparation) pairs, each file started at its preparation's full charge
     with the preparation as unscored lead-in (:func:`battlab.diagnose.data.prepare`), at ``full_charge_soc`` (1 by
-    definition; the SOC a fit of the same preparations found the full charge to leave)."""
+    definition; the SOC a fit of the same preparations found the full charge to leave); ``held_out_tail``: hold out
+    only the final part of each held-out file, its beginning trains (:func:`battlab.diagnose.data.split`)."""
 
     data: tuple[str | Path, ...]
     cell: Cell | str | Path
@@ -126,6 +127,7 @@ class DiagnoseOptions:
     also_fit: tuple[str, ...] = ()
     preparations: tuple[tuple[str | Path, str | Path], ...] = ()
     full_charge_soc: float = 1.0
+    held_out_tail: bool = False
 
     def __post_init__(self) -> None:
         from battlab.diagnose.directions import DEFAULT_CAUSES
@@ -450,6 +452,7 @@ def diagnose(options: DiagnoseOptions, subscribers: Sequence[Subscriber] = ()) -
         fix_sign=o.fix_sign,
         preparations=o.preparations,
         full_charge_soc=o.full_charge_soc,
+        held_out_tail=o.held_out_tail,
     )
     steps: dict[str, float] = {"prepare": time.perf_counter() - t_start}
 

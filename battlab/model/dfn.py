@@ -15,7 +15,8 @@ j as the interfacial current density i = F j_n [A m⁻²] (positive = lithium le
   i₀ = k √(c_ss (c_max − c_ss) c_e), η = φ_s − φ_e − U(c_ss) − R_f i;
 - voltage (A21): V = φ_s(L) − φ_s(0) − R_c I;
 - thermal (B1–B4) with Bernardi's heat Q = I (U_bulk − V) − I T₁ ∂U_bulk/∂T (docs/decisions.md) and the
-  Arrhenius law ψ = ψ_ref exp[(E/R)(1/T_ref − 1/T₁)] (B5 corrected) for D_s, D_e, κ, k;
+  Arrhenius law ψ = ψ_ref exp[(E/R)(1/T_ref − 1/T₁)] (B5 corrected) for D_s, D_e, κ, k and the films'
+  conductance 1/R_f;
 - effective properties: ψ^eff = ψ ε^b (Bruggeman) or ψ B (a BPX transport efficiency); a_s = 3 ε_s/R_s.
 
 The 18 identified parameters enter as normalised values θ̄ (eq. 1), symbolic inputs of every function, so the
@@ -424,7 +425,9 @@ class DFN:
             for ext in self.options.extensions:
                 U = ext.open_circuit(c, e, U)
             U = U + edge_potential(c.surf[e], c.T1)
-            eta = c.y[c.sl[f"phis_{e}"]] - c.phie[off[e] : off[e] + nxe] - U - p[f"R_f_{e}"] * c.i_int[e]
+            # a film's ionic conduction is thermally activated: R_f = R_f,ref / exp[(E/R)(1/T_ref − 1/T₁)]
+            R_f = p[f"R_f_{e}"] / _arrhenius(self.activation(c, f"E_R_f_{e}"), self.T_ref, c.T1)
+            eta = c.y[c.sl[f"phis_{e}"]] - c.phie[off[e] : off[e] + nxe] - U - R_f * c.i_int[e]
             c.g_bv[e] = (c.i_int[e] - 2.0 * i0 * ca.sinh(F * eta / (2.0 * R_GAS * c.T1))) / c.i_ref
             c.U[e] = U
             # B3-B4: the potentials at the electrode's mean bulk stoichiometry (one evaluation per electrode)

@@ -30,7 +30,7 @@ STO_GRID = np.linspace(0.0, 1.0, 201)
 CE_GRID = np.linspace(0.0, 6000.0, 241)
 # keys whose value BPX cannot hold exactly: written as "battlab: <key>" and restored on reading
 EXT_KEYS = (
-    *("C1", "C2", "h12", "h2a", "T_max", "R_c", "R_f_n", "R_f_p", "n_Li", "k_n", "k_p"),
+    *("C1", "C2", "h12", "h2a", "T_max", "R_c", "R_f_n", "R_f_p", "E_R_f_n", "E_R_f_p", "n_Li", "k_n", "k_p"),
     *("dlnf", "dlnf_scale", "D_e", "D_e_scale", "kappa", "kappa_scale", "sigma_n", "sigma_p"),
     *("brugg_s_n", "brugg_s_p", "brugg_n", "brugg_s", "brugg_p", "B_n", "B_s", "B_p"),
     *("D_s_n", "D_s_p", "D_s_n_shape", "D_s_p_shape"),

@@ -150,6 +150,7 @@ def read_bpx(path: str | Path) -> Cell:
             "" if e.dudt is not None else "absent: 0",
         )
         put(f"R_f_{s}", 0.0, "BPX has no film resistance")
+        put(f"E_R_f_{s}", 0.0, "BPX has no film resistance")
         lo, hi = float(e.minimum_stoichiometry), float(e.maximum_stoichiometry)
         if s == "n":
             put("sto_n_0", lo, "minimum stoichiometry")

@@ -70,3 +70,62 @@ def test_the_first_diagnosis_holds_out_what_its_options_say(tmp_path: Path, monk
     d = DiagnoseOptions(("a.csv", "b.csv", "c.csv"), "nca18650", held_out="a.csv")
     D.decide(DecideOptions(d, tmp_path, truth="nca18650-true"))
     assert seen == [("a.csv",)]
+
+
+def test_a_cause_hidden_behind_another_causes_parameters_is_not_ruled_out_when_it_says_what_separates_them() -> None:
+    """``undetectable`` entries hidden behind base parameters: a series resistance taken up by the film resistances
+    (owned by the kinetics, which it declares a separating experiment for) is a candidate to decide; one hidden
+    behind its own cause's parameters, or only too small, is not."""
+    from battlab.campaign.decide import not_ruled_out
+
+    own = {"cause": "electrolyte", "hidden_by": ["D_e_scale", "c_e0"], "typical": {"De_slope": 0.4}}
+    small = {"cause": "hysteresis", "typical": {"M_n": 0.01}}
+    contact = {"cause": "contact_resistance", "hidden_by": ["R_f_p", "sigma_p"], "typical": {"R_c": 0.005}}
+    assert not_ruled_out({"undetectable": [own, small]}) is None
+    h = not_ruled_out({"undetectable": [own, small, contact]})
+    assert h is not None and (h.cause, h.owner, h.by, h.typical) == (
+        "contact_resistance",
+        "kinetics",
+        ("R_f_p", "sigma_p"),
+        {"R_c": 0.005},
+    )
+
+
+def test_a_deciding_experiment_for_a_hidden_cause_is_held_out_by_its_final_part(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The experiment run for a cause not ruled out is added to the data and held out by its final part (the fits
+    see its beginning); the second diagnosis names what it names, and no second round follows for the same hidden
+    cause."""
+    import battlab.campaign.decide as D
+    from battlab.design.discriminate import Discrimination, Option
+
+    seen = []
+    hidden = {"cause": "contact_resistance", "hidden_by": ["R_f_p"], "typical": {"R_c": 0.005}}
+
+    class Report:
+        def __init__(self, summary: dict) -> None:
+            self.summary = summary
+
+    def diagnose(options: DiagnoseOptions, subscribers: object = ()) -> Report:
+        seen.append((options.held_out, options.held_out_tail))
+        first = len(seen) == 1
+        named = None if first else "contact_resistance"
+        return Report({"cause": named, "cannot_tell": [], "ranking": [], "undetectable": [hidden]})
+
+    option = Option("19", 283.15, 1500.0, 2.5)
+
+    def discriminate(models: dict, profiles: list, ambients: list, **kw: object) -> Discrimination:
+        assert set(models) == {"contact_resistance", "kinetics"} and kw["anchor"] == 298.15
+        return Discrimination(tuple(models), option, (option,))
+
+    monkeypatch.setattr(D, "diagnose", diagnose)
+    monkeypatch.setattr("battlab.design.discriminate.discriminate", discriminate)
+    monkeypatch.setattr(D, "run_experiment", lambda o, p, a, rel, cell: tmp_path / f"{rel}.h5")
+    d = DiagnoseOptions(("a.csv", "b.csv"), "nca18650", held_out="b.csv")
+    out = D.decide(D.DecideOptions(d, tmp_path, truth="nca18650-true"))
+    assert seen == [(("b.csv",), False), ((tmp_path / "decide_1_19.h5",), True)]
+    assert out.undecided is None and out.report.summary["cause"] == "contact_resistance"
+    (r,) = out.rounds
+    assert r["not_ruled_out"]["cause"] == "contact_resistance" and r["cause_after"] == "contact_resistance"
+    assert r["experiment"]["ambient_degC"] == pytest.approx(10.0)

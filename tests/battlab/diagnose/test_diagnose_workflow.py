@@ -175,6 +175,10 @@ def test_one_file_holds_out_its_final_30_percent_several_the_last_or_those_named
     assert name == "a" and [p.train for p in parts] == [0, exps[0].voltage.size]
     parts, name = split([("a", exps), ("b", exps), ("c", exps)], ("a", "c"))
     assert name == "a + c" and [p.train for p in parts] == [0, exps[0].voltage.size, 0]
+    # a held-out file's final part only: its beginning trains
+    n = exps[0].voltage.size
+    parts, name = split([("a", exps), ("b", exps)], "b", tail=True)
+    assert name == "b (final 30 %)" and [p.train for p in parts] == [n, round(0.7 * n)]
 
 
 def test_more_charge_than_the_cell_holds_is_an_input_error(tmp_path) -> None:

@@ -15,7 +15,7 @@ import pytest
 
 import battlab
 from battlab import Cell, parameters
-from battlab.cell import F
+from battlab.cell import R_GAS, F
 from battlab.model.dfn import C_SCALE, DFN
 from battlab.model.mesh import Mesh
 from battlab.model.solver import Settings
@@ -252,6 +252,24 @@ def test_transport_and_kinetics_speed_up_when_hot(nca18650: Cell, flat: Cell) ->
     assert np.all(v(nca18650, dis, hot) - v(flat, dis, hot) > 1e-3)
     assert np.all(v(nca18650, chg, hot) - v(flat, chg, hot) < -1e-3)
     assert np.all(v(nca18650, dis, cold) - v(flat, dis, cold) < -1e-3)
+
+
+@pytest.mark.parametrize("ambient", [273.15, 318.15])
+def test_a_films_resistance_is_its_reference_value_over_the_arrhenius_factor(flat: Cell, ambient: float) -> None:
+    """R_f(T) = R_f,ref / exp[(E/R)(1/T_ref − 1/T)] (a film's ionic conduction is thermally activated): at a fixed
+    temperature, the cell with E_R_f± is the cell without them whose R_f± are scaled by that factor, to round-off;
+    and the cold film's drop is the larger."""
+    E = {"E_R_f_n": 58.9e3, "E_R_f_p": 40e3}
+    activated = flat.with_values(**E)
+    factor = {e: float(np.exp(E[f"E_R_f_{e}"] / R_GAS * (1 / 298.15 - 1 / ambient))) for e in ("n", "p")}
+    scaled = flat.with_values(**{f"R_f_{e}": float(flat[f"R_f_{e}"]) / factor[e] for e in ("n", "p")})
+    prof = Profile.constant(-ONE_C, 300.0, 10.0)
+    va, vs, vf = (
+        battlab.simulate(c, prof, soc0=0.5, ambient=ambient, isothermal=True).voltage for c in (activated, scaled, flat)
+    )
+    np.testing.assert_allclose(va, vs, rtol=0, atol=1e-9)
+    # on discharge a larger film drop is a lower voltage: colder than T_ref the films resist more, hotter less
+    assert np.all((va - vf) * (ambient - 298.15) > 1e-4)
 
 
 @pytest.mark.parametrize("electrode", ["n", "p"])
