@@ -409,7 +409,7 @@ def diagnosis(view: View) -> Section:
         cols, rows = rounds_table(dg["rounds"])
         blocks.append(Table(cols, rows, caption="deciding experiments run on the tester"))
     if dg.get("undecided"):
-        blocks.append(Paragraph(f"undecided: {dg['undecided']}", "bad"))
+        blocks.append(Paragraph(f"undecided: {dg['undecided']}", "warn"))
     tried = dg.get("extended") or []
     if len(tried) > 1:
         blocks.append(
