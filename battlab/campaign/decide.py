@@ -250,7 +250,7 @@ def _nothing_separates(hidden: Hidden | None, disc: Any) -> str:
     )
     return (
         f"{hidden.cause} is not ruled out (hidden behind {', '.join(hidden.by)}), and no experiment within the budget "
-        f"and the limits separates it at its typical size from {hidden.owner}'s parameters refitted (χ² below "
+        f"and the limits separates it at its typical size from the parameters of {hidden.owner} refitted (χ² below "
         f"{T_ENOUGH:g}; {best})"
     )
 

@@ -450,13 +450,29 @@ def diagnosis(view: View) -> Section:
     if table:
         names = list(next(iter(table.values())))
         shown = (dg.get("extension_gain") or {}).get("cause") or cause or dg.get("suggested")
-        control = "refit" in table
+        control, off = "refit" in table, "extension off" in table
         blocks.append(
             Table(
-                ["held-out test", "before [mV]", *(["base refit [mV]"] if control else []), "after [mV]"],
-                [[n, table["before"][n], *([table["refit"][n]] if control else []), table["after"][n]] for n in names],
+                [
+                    "held-out test",
+                    "before [mV]",
+                    *(["base refit [mV]"] if control else []),
+                    "after [mV]",
+                    *(["after, extension off [mV]"] if off else []),
+                ],
+                [
+                    [
+                        n,
+                        table["before"][n],
+                        *([table["refit"][n]] if control else []),
+                        table["after"][n],
+                        *([table["extension off"][n]] if off else []),
+                    ]
+                    for n in names
+                ],
                 caption=f"the OED fit before and after the {shown} extension (extend step)"
-                + (", beside its base refitted alone by the same evaluations" if control else ""),
+                + (", beside its base refitted alone by the same evaluations" if control else "")
+                + (", and the extended cell with the extension switched off (the cause's own part)" if off else ""),
             )
         )
     g = dg.get("diagnosis_gain") or {}
