@@ -85,16 +85,25 @@ def _t_criterion(ya: np.ndarray, yb: np.ndarray, Sb: np.ndarray, w: np.ndarray) 
 
 
 def _anchored(
-    models: Mapping[str, tuple[Cell, Sequence[str]]], profile: Profile, soc0: float, ambient: float, runs: dict
+    models: Mapping[str, tuple[Cell, Sequence[str]]],
+    profile: Profile,
+    soc0: float,
+    ambient: float,
+    runs: dict,
+    cache: dict | None = None,
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Per model (voltage, sensitivities) of the option's run stacked on the same profile's run at ``ambient``
-    (the anchor: a refit must keep the data already taken there); the option's run alone where the anchor run stops."""
+    (the anchor: a refit must keep the data already taken there); the option's run alone where the anchor run stops.
+    ``cache``: the profile's anchor runs by model, shared by its options at every ambient."""
     from battlab.simulation import simulate
 
+    cache = {} if cache is None else cache
     out = {}
     for key, (cell, names) in models.items():
         r = runs[key]
-        a = simulate(cell, profile, soc0=soc0, ambient=ambient, T0=ambient, sensitivities=list(names))
+        if key not in cache:
+            cache[key] = simulate(cell, profile, soc0=soc0, ambient=ambient, T0=ambient, sensitivities=list(names))
+        a = cache[key]
         if a.ended_by is not None or a.voltage.size < profile.t.size:
             return {k: (v.voltage, _sens(v)) for k, v in runs.items()}
         out[key] = (np.concatenate([r.voltage, a.voltage]), np.vstack([_sens(r), _sens(a)]))
@@ -114,12 +123,13 @@ def weigh(
     noise: NoiseModel,
     limits: tuple[float, float, float],
     anchor: float | None = None,
+    anchor_runs: dict | None = None,
 ) -> Option:
     """The option of one profile at one ambient: ``models`` maps each cause to its fitted cell and the parameters
     it would refit; ``limits`` (V_min, V_max [V], T_max [K]) those of the run. ``anchor`` [K]: the ambient of the
     data already taken; at another ambient each refit must also keep the same profile's prediction there (a nested
     alternative that a base parameter mimics at the anchor shows where that parameter's temperature dependence
-    differs from the alternative's)."""
+    differs from the alternative's); ``anchor_runs``: the profile's runs there, filled and reused across ambients."""
     from battlab.simulation import simulate
 
     v_min, v_max, t_max = limits
@@ -133,8 +143,10 @@ def weigh(
         if res.T_surface is not None and float(np.max(res.T_surface)) > t_max:
             return Option(str(profile.id), ambient, 0.0, 0.0, f"{key}: the surface passes {t_max - 273.15:.0f} degC")
         runs[key] = res
+    if anchor is not None and abs(anchor - ambient) <= 0.5 and anchor_runs is not None:
+        anchor_runs.update(runs)  # this option is the anchor run
     if anchor is not None and abs(anchor - ambient) > 0.5:
-        stacked = _anchored(models, profile, soc0, anchor, runs)
+        stacked = _anchored(models, profile, soc0, anchor, runs, anchor_runs)
     else:
         stacked = {k: (r.voltage, _sens(r)) for k, r in runs.items()}
     q = noise.q(profile)
@@ -165,9 +177,13 @@ def discriminate(
     first = next(iter(models.values()))[0]
     lim = limits or (float(first["V_min"]), float(first["V_max"]), float(first["T_max"]))
     options = []
-    for amb in ambients:
-        for p in profiles:
-            o = weigh(models, p, float(p.soc0 if p.soc0 is not None else 0.5), float(amb), noise, lim, anchor)
+    # the anchor's own ambient first: its runs are the ones the other ambients' options stack on
+    order = sorted(ambients, key=lambda a: anchor is None or abs(float(a) - anchor) > 0.5)
+    for p in profiles:
+        at_anchor: dict = {}
+        for amb in order:
+            soc0 = float(p.soc0 if p.soc0 is not None else 0.5)
+            o = weigh(models, p, soc0, float(amb), noise, lim, anchor, at_anchor)
             if o.excluded is None and budget_hours is not None and o.hours > budget_hours:
                 o = Option(o.profile_id, o.ambient, o.divergence, o.hours, f"{o.hours:.1f} h over the budget")
             options.append(o)
